@@ -1,0 +1,1 @@
+"""Controllers that are not learned, and policy-side helpers for SB3."""

@@ -1,0 +1,1 @@
+"""Training (SB3 PPO/SAC) and headless evaluation entry points."""
