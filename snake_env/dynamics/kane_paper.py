@@ -57,6 +57,16 @@ def partials_wrt_q(h, C, S, V, W, dtype, batch):
     return dVdq, dWdq
 
 
+def mass_matrix(model, q):
+    """Eq. 9: the 2 x 2 mass matrix M(phi), (..., 2, 2) (kg, kg m, kg m^2)."""
+    q = np.asarray(q)
+    m, h, inertia, _, _ = model.parameters(q.dtype)
+    phi = joint_angles(q[..., : model.n_links])
+    dVdu, dWdu = partials_wrt_u(h, np.cos(phi), np.sin(phi), q.dtype, phi.shape[:-1])
+    return (np.einsum("k,...ki,...kj->...ij", m, dVdu, dVdu)
+            + np.einsum("k,...ki,...kj->...ij", inertia, dWdu, dWdu))
+
+
 def udot(model, q, u, torques):
     """Generalized accelerations (..., 2) by the paper's eqs. 8-21."""
     m, h, inertia, c_joint, c_wheel = model.parameters(u.dtype)
