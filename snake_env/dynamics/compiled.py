@@ -156,3 +156,21 @@ def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, po
     """Batched :func:`derivatives` without joint limits (the paper's model)."""
     for b in prange(q.shape[0]):
         power[b] = derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq[b], du[b])
+
+
+@njit(cache=True, nogil=True)
+def udot_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
+    """udot (B, 2) of the paper's model (no joint limits) for q (B, n+2),
+    u (B, 2), torques (B, n-1); serial, for the small batches of ``model.udot``."""
+    dq = np.empty(q.shape[1])
+    for b in range(q.shape[0]):
+        derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq, du[b])
+
+
+@njit(cache=True, parallel=True)
+def udot_batch_parallel(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
+    """:func:`udot_batch` spread over threads, for large batches."""
+    nq = q.shape[1]
+    for b in prange(q.shape[0]):
+        dq = np.empty(nq)
+        derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq, du[b])

@@ -13,6 +13,11 @@ Differentiating eqs. 6-7 in time gives them in the same forward sweep:
 With Vdot_1 = omegadot_1 = 0 this is the velocity-product ("bias")
 acceleration; the partials dV/du, domega/du (eqs. 12-14) run through the same
 linear map. Four channels, one sweep: O(n) for the whole udot.
+
+:func:`udot` sends float64 input to the compiled scalar version of this sweep
+(:mod:`snake_env.dynamics.compiled`); :func:`udot_sweep` is the vectorised
+numpy sweep, used for float32 (the paper's single-precision runs) and kept as
+the readable reference.
 """
 
 from __future__ import annotations
@@ -59,8 +64,38 @@ def solve_2x2(M00, M01, M11, r0, r1):
     return np.stack([(M11 * r0 - M01 * r1) / det, (M00 * r1 - M01 * r0) / det], axis=-1)
 
 
+# Batches at least this large go to the threaded kernel; below it, thread
+# start-up costs more than it saves (measured with snake-bench, 2 cores).
+PARALLEL_BATCH = 4096
+
+
 def udot(model, q, u, torques):
-    """Generalized accelerations (..., 2) by the O(n) Kane sweep."""
+    """Generalized accelerations (..., 2) by the O(n) Kane sweep.
+
+    float64 goes to the compiled kernel, anything else to :func:`udot_sweep`.
+    """
+    if u.dtype != np.float64 or q.dtype != np.float64 or torques.dtype != np.float64:
+        return udot_sweep(model, q, u, torques)
+    return udot_compiled(model, q, u, torques)
+
+
+def udot_compiled(model, q, u, torques):
+    """float64 udot (..., 2) by the numba kernel, batch flattened to one axis."""
+    from . import compiled  # lazy: keeps `import snake_env` free of numba start-up
+
+    batch = np.broadcast_shapes(q.shape[:-1], u.shape[:-1], torques.shape[:-1])
+    size = int(np.prod(batch, dtype=np.int64))
+    qf = np.ascontiguousarray(np.broadcast_to(q, batch + q.shape[-1:]).reshape(size, q.shape[-1]))
+    uf = np.ascontiguousarray(np.broadcast_to(u, batch + (2,)).reshape(size, 2))
+    tf = np.ascontiguousarray(np.broadcast_to(torques, batch + torques.shape[-1:]).reshape(size, torques.shape[-1]))
+    du = np.empty((size, 2))
+    kernel = compiled.udot_batch_parallel if size >= PARALLEL_BATCH else compiled.udot_batch
+    kernel(*model.parameters(np.float64), qf, uf, tf, du)
+    return du.reshape(batch + (2,))
+
+
+def udot_sweep(model, q, u, torques):
+    """Generalized accelerations (..., 2) by the vectorised numpy O(n) sweep."""
     m, h, inertia, c_joint, c_wheel = model.parameters(u.dtype)
     n = model.n_links
     phi = joint_angles(q[..., :n])
