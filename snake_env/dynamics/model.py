@@ -109,7 +109,11 @@ class SnakeModel:
             torques = state_array("torques", torques, self.n_joints)
             arrays.append(torques)
         dtype = result_dtype(*arrays)
-        batch = np.broadcast_shapes(*(a.shape[:-1] for a in arrays))
+        try:
+            batch = np.broadcast_shapes(*(a.shape[:-1] for a in arrays))
+        except ValueError:
+            shapes = ", ".join(f"{name} {a.shape}" for name, a in zip(("q", "u", "torques"), arrays))
+            raise ValueError(f"q, u and torques must have broadcastable leading (batch) dimensions, got {shapes}") from None
         out = [np.broadcast_to(a.astype(dtype, copy=False), batch + a.shape[-1:]) for a in arrays]
         return out if torques is not None else out + [None]
 
