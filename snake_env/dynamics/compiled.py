@@ -159,6 +159,13 @@ def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, po
 
 
 @njit(cache=True, nogil=True)
+def udot_single(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
+    """udot (2,) of one state of the paper's model (no joint limits), written into du."""
+    dq = np.empty(q.shape[0])
+    derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q, u, torques, dq, du)
+
+
+@njit(cache=True, nogil=True)
 def udot_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """udot (B, 2) of the paper's model (no joint limits) for q (B, n+2),
     u (B, 2), torques (B, n-1); serial, for the small batches of ``model.udot``."""

@@ -83,6 +83,10 @@ def udot_compiled(model, q, u, torques):
     """float64 udot (..., 2) by the numba kernel, batch flattened to one axis."""
     from . import compiled  # lazy: keeps `import snake_env` free of numba start-up
 
+    if q.ndim == 1 and u.ndim == 1 and torques.ndim == 1:  # one state: skip the batch bookkeeping
+        du = np.empty(2)
+        compiled.udot_single(*model.parameters(np.float64), q, u, torques, du)
+        return du
     batch = np.broadcast_shapes(q.shape[:-1], u.shape[:-1], torques.shape[:-1])
     size = int(np.prod(batch, dtype=np.int64))
     qf = np.ascontiguousarray(np.broadcast_to(q, batch + q.shape[-1:]).reshape(size, q.shape[-1]))

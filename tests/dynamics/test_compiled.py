@@ -120,6 +120,7 @@ def test_batch_kernels_equal_single_kernels():
     du_serial, du_parallel = np.empty_like(u), np.empty_like(u)
     compiled.udot_batch(*params, q, u, torques, du_serial)
     compiled.udot_batch_parallel(*params, q, u, torques, du_parallel)
+    du_single = np.empty(2)
     for b in range(B):
         qs, us = q[b].copy(), u[b].copy()
         ws = compiled.rk4_step(*params, *limits, qs, us, torques[b], 0.01, 2)
@@ -132,6 +133,8 @@ def test_batch_kernels_equal_single_kernels():
         np.testing.assert_array_equal(du[b], dus)
         np.testing.assert_array_equal(du_serial[b], dus)
         np.testing.assert_array_equal(du_parallel[b], dus)
+        compiled.udot_single(*params, q[b], u[b], torques[b], du_single)
+        np.testing.assert_array_equal(du_single, dus)
         assert power[b] == ps
 
 

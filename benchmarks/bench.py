@@ -1,0 +1,163 @@
+"""``snake-bench``: speed of snake_env side by side with MuJoCo Swimmer-v5.
+
+    snake-bench [--quick] [--json PATH] [--plot PATH] [--markdown PATH]
+                [--sections LIST] [--from-json PATH]
+
+Sections (issue 6): single-env steps/s (Snake3, Snake5, Snake30 and
+Swimmer-v5), vector env env-steps/s vs number of envs, udot time vs n for every
+formulation, SB3 PPO fps (Snake5 batched vs Swimmer-v5 single env), peak memory
+of a 4096-env Snake30 vector env and fresh-process start-up time. Prints a
+table and the issue's targets (met / not met), writes JSON, a scaling plot and
+``docs/benchmarks.md``. ``--quick`` runs every section at tiny sizes (a smoke
+test, numbers meaningless). ``--from-json`` re-renders a saved run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+
+from benchmarks import bench_report, bench_sections
+
+SECTIONS = ("single", "vector", "udot", "ppo", "memory", "startup")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """Sizes of every section; FULL fits in ~10 minutes on 2 cores, QUICK in seconds."""
+
+    single_links: tuple = (3, 5, 30)
+    single_steps: int = 10_000
+    single_rounds: int = 5
+    vector_links: int = 5
+    vector_num_envs: tuple = (1, 8, 64, 256, 1024, 4096)
+    vector_env_steps: int = 400_000  # env-steps per round; batch steps = this / num_envs
+    vector_rounds: int = 3
+    udot_n: tuple = (10, 20, 50, 100, 200, 500, 1000)
+    udot_min_time: float = 0.05  # s of repeated calls per timing block
+    udot_max_call_time: float = 0.05  # s: a slower method stops growing n
+    ppo_links: int = 5
+    ppo_num_envs: int = 16
+    ppo_iterations: int = 1
+    ppo_rounds: int = 3
+    ppo_kwargs: dict = field(default_factory=dict)  # SB3 defaults
+    memory_links: int = 30
+    memory_num_envs: int = 4096
+    memory_steps: int = 50
+    startup_runs: int = 3
+
+
+FULL = BenchConfig()
+QUICK = BenchConfig(
+    single_steps=300, single_rounds=2,
+    vector_num_envs=(4, 16), vector_env_steps=320, vector_rounds=2,
+    udot_n=(10, 20, 40), udot_min_time=0.002, udot_max_call_time=0.05,
+    ppo_num_envs=4, ppo_rounds=1, ppo_kwargs={"n_steps": 64, "batch_size": 32, "n_epochs": 1},
+    memory_num_envs=64, memory_steps=5, startup_runs=1,
+)
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(prog="snake-bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="tiny sizes: checks that every section runs")
+    parser.add_argument("--json", metavar="PATH", help="write all results as JSON")
+    parser.add_argument("--plot", metavar="PATH", help="write the scaling plot (png, svg or pdf)")
+    parser.add_argument("--markdown", metavar="PATH", help="write the results page (docs/benchmarks.md)")
+    parser.add_argument("--sections", default=",".join(SECTIONS),
+                        help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)")
+    parser.add_argument("--from-json", metavar="PATH", help="render a saved JSON instead of measuring")
+    args = parser.parse_args(argv)
+    sections = [s.strip() for s in args.sections.split(",") if s.strip()]
+    bad = [s for s in sections if s not in SECTIONS]
+    if bad or not sections:
+        parser.error(f"--sections must be a comma-separated subset of {', '.join(SECTIONS)}, got {args.sections!r}")
+    if args.plot and not args.plot.lower().endswith((".png", ".svg", ".pdf")):
+        parser.error(f"--plot must end in .png, .svg or .pdf, got {args.plot!r}")
+    if args.from_json and args.quick:
+        parser.error("--from-json renders a saved run; it cannot be combined with --quick")
+    args.sections = sections
+    return args
+
+
+def run_sections(config: BenchConfig, sections, log=print) -> dict:
+    """Run the selected sections; a failing section is recorded, not fatal."""
+    results = {"config": {**asdict(config), "vector_n_links": config.vector_links}, "errors": {}, "notes": []}
+    has_mujoco, why = bench_sections.mujoco_available()
+    results["mujoco"] = {"available": has_mujoco, "reason": why}
+    if not has_mujoco:
+        results["notes"].append(f"Swimmer-v5 not measured: {why}")
+
+    def attempt(name, fn):
+        log(f"[snake-bench] {name} ...", flush=True)
+        start = time.perf_counter()
+        try:
+            results[name] = fn()
+        except Exception as exc:  # noqa: BLE001 - one broken section must not hide the others
+            results["errors"][name] = f"{type(exc).__name__}: {exc}"
+            results["notes"].append(f"section {name} failed: {type(exc).__name__}: {exc}")
+        log(f"[snake-bench] {name} done in {time.perf_counter() - start:.1f} s", flush=True)
+
+    if "single" in sections:
+        ids = ([bench_sections.SWIMMER_ID] if has_mujoco else []) + [bench_sections.snake_id(n) for n in config.single_links]
+        attempt("single_env", lambda: bench_sections.single_env_speeds(ids, config.single_steps, config.single_rounds))
+    if "vector" in sections:
+        attempt("vector_env", lambda: bench_sections.vector_env_speeds(
+            config.vector_links, config.vector_num_envs, config.vector_env_steps, config.vector_rounds))
+    if "udot" in sections:
+        attempt("udot", lambda: bench_sections.udot_scaling(config.udot_n, config.udot_min_time, config.udot_max_call_time))
+    if "ppo" in sections:
+        attempt("ppo", lambda: bench_sections.ppo_speeds(
+            config.ppo_links, config.ppo_num_envs, config.ppo_iterations, config.ppo_rounds, config.ppo_kwargs,
+            with_swimmer=has_mujoco))
+    if "memory" in sections:
+        attempt("memory", lambda: bench_sections.vector_env_memory(
+            config.memory_links, config.memory_num_envs, config.memory_steps))
+    if "startup" in sections:
+        attempt("startup", lambda: bench_sections.startup_time(5, config.startup_runs))
+    return results
+
+
+def write_outputs(results: dict, args) -> None:
+    if args.json:
+        bench_report.write_atomic(args.json, json.dumps(results, indent=2) + "\n")
+    if args.plot:
+        bench_report.write_plot(results, args.plot)
+    if args.markdown:
+        bench_report.write_atomic(args.markdown, bench_report.format_markdown(results, args.plot, args.markdown))
+
+
+def main(argv=None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    if args.from_json:
+        try:
+            with open(args.from_json) as f:
+                results = json.load(f)
+        except (OSError, json.JSONDecodeError) as exc:
+            print(f"snake-bench: error: --from-json {args.from_json!r} is not a readable JSON file: {exc}", file=sys.stderr)
+            return 2
+        if args.plot is None and results.get("plot"):
+            args.plot = results["plot"]
+    else:
+        config = QUICK if args.quick else FULL
+        started = time.time()
+        results = {"machine": bench_report.machine_description(),
+                   "started_utc": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(started)),
+                   "command": "snake-bench " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])),
+                   "quick": args.quick}
+        results.update(run_sections(config, args.sections, log=lambda *a, **k: print(*a, file=sys.stderr, **k)))
+        results["duration_s"] = time.time() - started
+        results["plot"] = args.plot
+        if args.quick:
+            results["notes"].append("--quick run: tiny sizes, numbers are not meaningful")
+    results["targets"] = bench_report.evaluate_targets(results)
+    print(bench_report.format_text(results))
+    write_outputs(results, args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,293 @@
+"""The measurements of ``snake-bench``, one function per section.
+
+Every function returns plain JSON-ready data (dicts, lists, floats) and takes
+its sizes as arguments, so ``--quick`` and the full run differ only in the
+numbers passed in. Speeds are the best of ``rounds`` repeats (the timeit
+convention: on a shared machine the fastest repeat is the one least slowed by
+other processes); every repeat is kept in the JSON. Snake and MuJoCo Swimmer
+are measured in the same process, interleaved round by round, so both see the
+same machine load.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+SWIMMER_ID = "Swimmer-v5"
+
+
+def snake_id(n_links: int) -> str:
+    return f"snake_env/Snake{n_links}-v0"
+
+
+def mujoco_available() -> tuple[bool, str]:
+    """(True, "") if gym.make("Swimmer-v5") works, else (False, the reason)."""
+    try:
+        import gymnasium as gym
+
+        env = gym.make(SWIMMER_ID)
+        env.close()
+        return True, ""
+    except Exception as exc:  # noqa: BLE001 - any failure means "not measurable", with the reason kept
+        return False, f"{type(exc).__name__}: {exc}"
+
+
+# --------------------------------------------------------------------------- single env
+def _fixed_actions(space, count: int, seed: int) -> list:
+    """Pre-drawn actions so sampling cost is not part of the step time."""
+    rng = np.random.default_rng(seed)
+    low, high = space.low, space.high
+    return [rng.uniform(low, high).astype(space.dtype) for _ in range(count)]
+
+
+def _time_single_env(env, actions, steps: int) -> float:
+    """Steps per second of ``env.step`` (resets on episode end are counted in the time)."""
+    env.reset(seed=0)
+    n_actions = len(actions)
+    start = time.perf_counter()
+    for i in range(steps):
+        _, _, terminated, truncated, _ = env.step(actions[i % n_actions])
+        if terminated or truncated:
+            env.reset()
+    return steps / (time.perf_counter() - start)
+
+
+def single_env_speeds(env_ids, steps: int, rounds: int) -> dict:
+    """Single-env steps/s of each id, made with ``gym.make`` (default wrappers
+    included, as users get them), interleaved over ``rounds``."""
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401 - registers the ids
+
+    envs = {env_id: gym.make(env_id) for env_id in env_ids}
+    actions = {env_id: _fixed_actions(env.action_space, 256, seed=1) for env_id, env in envs.items()}
+    for env_id, env in envs.items():  # warm-up: compile/load kernels, allocate
+        _time_single_env(env, actions[env_id], min(steps, 200))
+    samples = {env_id: [] for env_id in env_ids}
+    for _ in range(rounds):
+        for env_id, env in envs.items():
+            samples[env_id].append(_time_single_env(env, actions[env_id], steps))
+    for env in envs.values():
+        env.close()
+    return {env_id: {"steps_per_s": max(s), "samples": s, "steps": steps} for env_id, s in samples.items()}
+
+
+# --------------------------------------------------------------------------- vector env
+def vector_env_speeds(n_links: int, num_envs_list, batch_steps: int, rounds: int) -> dict:
+    """env-steps/s of ``gym.make_vec(..., vectorization_mode="vector_entry_point")``
+    at each number of envs (autoreset included)."""
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401
+
+    results = {}
+    for num_envs in num_envs_list:
+        envs = gym.make_vec(snake_id(n_links), num_envs=num_envs, vectorization_mode="vector_entry_point")
+        rng = np.random.default_rng(2)
+        space = envs.action_space
+        actions = [rng.uniform(space.low, space.high).astype(space.dtype) for _ in range(8)]
+        envs.reset(seed=0)
+        for i in range(min(batch_steps, 20)):  # warm-up
+            envs.step(actions[i % 8])
+        samples = []
+        for _ in range(rounds):
+            start = time.perf_counter()
+            for i in range(batch_steps):
+                envs.step(actions[i % 8])
+            samples.append(num_envs * batch_steps / (time.perf_counter() - start))
+        envs.close()
+        results[str(num_envs)] = {"env_steps_per_s": max(samples), "samples": samples, "batch_steps": batch_steps}
+    return results
+
+
+# --------------------------------------------------------------------------- udot scaling
+def _time_call(fn, min_time: float) -> float:
+    """Seconds per call: repeat until ``min_time`` has elapsed, best of 3 such blocks."""
+    fn()
+    best = float("inf")
+    for _ in range(3):
+        calls = 0
+        start = time.perf_counter()
+        while True:
+            fn()
+            calls += 1
+            elapsed = time.perf_counter() - start
+            if elapsed >= min_time:
+                break
+        best = min(best, elapsed / calls)
+    return best
+
+
+def udot_scaling(n_list, min_time: float, max_call_time: float) -> dict:
+    """Seconds per ``model.udot(q, u, torques, method)`` for one float64 state,
+    for every method the model accepts, at each n in ``n_list``.
+
+    Besides the public ``model.udot`` (input checks included), two series show
+    where the time goes: ``kane_kernel`` (the compiled sweep alone) and
+    ``kane_numpy`` (the vectorised numpy sweep, the float32 path). A method
+    stops growing n once one call takes longer than ``max_call_time`` (s), so
+    the O(n^2) and O(n^3) formulations stay quick.
+    """
+    from snake_env.dynamics import METHODS, SnakeModel, compiled, kane
+
+    rng = np.random.default_rng(3)
+    series = {}
+    skipped = {}
+    probe = SnakeModel(3)
+    methods = []
+    for method in METHODS:
+        try:
+            probe.udot(np.zeros(5), np.zeros(2), np.zeros(2), method=method)
+            methods.append(method)
+        except ValueError as exc:
+            skipped[method] = str(exc)
+
+    def state(n):
+        q = np.concatenate([np.cumsum(rng.uniform(-0.3, 0.3, n)), [0.0, 0.0]])
+        return q, np.array([0.2, 0.1]), rng.normal(size=n - 1) * 0.1
+
+    runners = {method: (lambda model, q, u, T, method=method: model.udot(q, u, T, method=method)) for method in methods}
+    runners["kane_numpy"] = lambda model, q, u, T: kane.udot_sweep(model, q, u, T)
+
+    def kernel(model, q, u, T, du=np.empty((1, 2))):
+        compiled.udot_batch(*model.parameters(), q[None], u[None], T[None], du)
+
+    runners["kane_kernel"] = kernel
+    for name, run in runners.items():
+        times = {}
+        for n in n_list:
+            model = SnakeModel(n)
+            q, u, T = state(n)
+            seconds = _time_call(lambda: run(model, q, u, T), min_time)
+            times[str(n)] = seconds
+            if seconds > max_call_time:
+                break
+        series[name] = times
+    return {"seconds_per_call": series, "skipped_methods": skipped, "n": list(n_list)}
+
+
+# --------------------------------------------------------------------------- PPO
+def _ppo_run(env, total_timesteps: int, ppo_kwargs: dict) -> float:
+    """Wall-clock SB3 PPO fps: collected timesteps over the time of ``learn``
+    (rollouts and gradient updates both included)."""
+    from stable_baselines3 import PPO
+
+    model = PPO("MlpPolicy", env, seed=0, device="cpu", verbose=0, **ppo_kwargs)
+    start = time.perf_counter()
+    model.learn(total_timesteps=total_timesteps)
+    elapsed = time.perf_counter() - start
+    return model.num_timesteps / elapsed
+
+
+def ppo_speeds(snake_links: int, snake_num_envs: int, iterations: int, rounds: int, ppo_kwargs: dict,
+               with_swimmer: bool) -> dict:
+    """SB3 PPO training fps on the batched snake env (SnakeSB3VecEnv) and on a
+    single Swimmer-v5 env, same PPO settings, interleaved round by round.
+
+    Each run is ``iterations`` full PPO iterations (rollout of n_steps per env
+    plus n_epochs of updates), so fps counts training time as SB3 users see it.
+    """
+    import gymnasium as gym
+    import torch
+
+    from agents.sb3_vec_env import SnakeSB3VecEnv
+
+    n_steps = ppo_kwargs.get("n_steps", 2048)
+    snake_env = SnakeSB3VecEnv(snake_id(snake_links), num_envs=snake_num_envs, seed=0)
+    samples = {"snake": [], "swimmer": []}
+    for _ in range(rounds):
+        samples["snake"].append(_ppo_run(snake_env, iterations * n_steps * snake_num_envs, ppo_kwargs))
+        if with_swimmer:
+            swimmer = gym.make(SWIMMER_ID)
+            samples["swimmer"].append(_ppo_run(swimmer, iterations * n_steps, ppo_kwargs))
+            swimmer.close()
+    snake_env.close()
+    out = {
+        "snake": {"env": snake_id(snake_links), "num_envs": snake_num_envs, "fps": max(samples["snake"]),
+                  "samples": samples["snake"]},
+        "ppo_kwargs": ppo_kwargs, "iterations": iterations, "torch_threads": torch.get_num_threads(),
+    }
+    if with_swimmer:
+        out["swimmer"] = {"env": SWIMMER_ID, "num_envs": 1, "fps": max(samples["swimmer"]), "samples": samples["swimmer"]}
+    return out
+
+
+# --------------------------------------------------------------------------- subprocess measurements
+def _run_child(code: str, timeout: float) -> dict:
+    """Run ``code`` in a fresh interpreter; it prints one JSON line last."""
+    env = dict(os.environ)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout, env=env)
+    if proc.returncode != 0:
+        raise RuntimeError(f"child process failed ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+MEMORY_CHILD = """
+import json, resource
+def rss_mb():
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+import gymnasium as gym, numpy as np, snake_env
+base = rss_mb()
+envs = gym.make_vec("snake_env/Snake{n_links}-v0", num_envs={num_envs}, vectorization_mode="vector_entry_point")
+envs.reset(seed=0)
+action = np.zeros(envs.action_space.shape, dtype=envs.action_space.dtype)
+for _ in range({steps}):
+    envs.step(action)
+current = rss_mb()
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+print(json.dumps({{"peak_rss_mb": peak, "rss_after_imports_mb": base, "rss_after_steps_mb": current}}))
+"""
+
+
+def vector_env_memory(n_links: int, num_envs: int, steps: int) -> dict:
+    """Peak resident memory (MiB) of a fresh process holding the vector env
+    (imports, env, reset and ``steps`` steps), and its RSS after the imports alone."""
+    out = _run_child(MEMORY_CHILD.format(n_links=n_links, num_envs=num_envs, steps=steps), timeout=600)
+    out.update({"env": snake_id(n_links), "num_envs": num_envs, "steps": steps})
+    return out
+
+
+STARTUP_CHILD = """
+import json, time
+start = time.perf_counter()
+import gymnasium as gym
+import snake_env
+env = gym.make("snake_env/Snake{n_links}-v0")
+env.reset(seed=0)
+env.step(env.action_space.sample())
+single = time.perf_counter() - start
+envs = gym.make_vec("snake_env/Snake{n_links}-v0", num_envs=8, vectorization_mode="vector_entry_point")
+envs.reset(seed=0)
+envs.step(envs.action_space.sample())
+print(json.dumps({{"import_and_first_step_s": single, "plus_vector_first_step_s": time.perf_counter() - start}}))
+"""
+
+
+def startup_time(n_links: int, runs: int) -> dict:
+    """Seconds from a fresh interpreter to the first env step (imports, numba
+    cache loads, make, reset, step). The first run fills numba's on-disk cache
+    if it is empty; the later runs are the "once caches exist" figure."""
+    code = STARTUP_CHILD.format(n_links=n_links)
+    samples = []
+    wall = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        samples.append(_run_child(code, timeout=600))
+        wall.append(time.perf_counter() - start)
+    warm = samples[1:] if len(samples) > 1 else samples
+    return {
+        "env": snake_id(n_links),
+        "first_run": samples[0],
+        "import_and_first_step_s": min(s["import_and_first_step_s"] for s in warm),
+        "process_wall_s": min(wall[1:] if len(wall) > 1 else wall),
+        "samples": samples,
+    }
