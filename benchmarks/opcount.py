@@ -342,8 +342,8 @@ def fit_polynomial(ns, values) -> list[Fraction]:
     Newton divided differences in rational arithmetic through all points;
     the result has the lowest degree that reproduces every point exactly.
     """
-    xs = [Fraction(int(x)) for x in ns]
-    table = [Fraction(int(v)) for v in values]
+    xs = [Fraction(x) for x in ns]
+    table = [Fraction(v) for v in values]
     coeffs_newton = [table[0]]
     for level in range(1, len(xs)):
         table = [(table[i + 1] - table[i]) / (xs[i + level] - xs[i]) for i in range(len(table) - 1)]

@@ -139,19 +139,25 @@ ENERGY_LABELS = {
 }
 
 
+ENERGY_COLORS = {"kane": "C0", "lagrange": "C3", "lagrange_baumgarte": "C2", "lagrange_u_space": "C1"}
+# Lagrange in u-space lies on Kane's curve: dashed on top so both stay visible.
+ENERGY_STYLES = {"kane": "-", "lagrange": "-", "lagrange_baumgarte": "-", "lagrange_u_space": "--"}
+
+
 def plot_energy(fig, runs, beta):
     ax1, ax2 = fig.subplots(2, 1, sharex=True)
     for name, run in runs.items():
         err = np.abs(np.asarray(run.energy_function, np.float64) - float(run.energy_function[0]))
         label = ENERGY_LABELS[name] + (f" (beta = {beta:g}/s)" if name == "lagrange_baumgarte" else "")
-        ax1.semilogy(run.t, np.maximum(err, 1e-18), lw=1, label=label)
+        ax1.semilogy(run.t, np.maximum(err, 1e-18), ENERGY_STYLES[name], color=ENERGY_COLORS[name], lw=1.2, label=label)
     ax1.set_ylabel("|S(t) - S(0)| (J)")
     ax1.set_title("Fig. 6: energy error, Table III (double precision)")
     ax1.legend(fontsize=8)
     ax1.grid(True, which="both", alpha=0.3)
     for name in ("lagrange", "lagrange_baumgarte"):
         run = runs[name]
-        ax2.semilogy(run.t, np.maximum(run.constraint_residual, 1e-18), lw=1, label=ENERGY_LABELS[name])
+        ax2.semilogy(run.t, np.maximum(run.constraint_residual, 1e-18), color=ENERGY_COLORS[name], lw=1,
+                     label=ENERGY_LABELS[name])
     ax2.set_ylabel("|A qdot| (m/s)")
     ax2.set_xlabel("t (s)")
     ax2.legend(fontsize=8)
