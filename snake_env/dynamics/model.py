@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import kane, kane_paper
+from . import kane, kane_paper, lagrange, newton_euler
 from .forces import generalized_power, torque_power
 from .kinematics import cm_positions, joint_angles, link_speeds
 from .validation import check_n_links, per_link_parameter, result_dtype, state_array
@@ -20,26 +20,14 @@ DEFAULT_LENGTH = 0.2  # m
 DEFAULT_INERTIA = 0.005  # kg m^2
 
 
-def _formulations():
-    """Name -> udot(model, q, u, torques). Imported lazily so the
-    multiplier formulations can live in their own modules."""
-    table = {"kane": kane.udot, "kane_paper": kane_paper.udot}
-    try:
-        from . import lagrange
-
-        table["lagrange"] = lagrange.udot
-    except ImportError:  # pragma: no cover - module not present yet
-        pass
-    try:
-        from . import newton_euler
-
-        table["newton_euler"] = newton_euler.udot
-    except ImportError:  # pragma: no cover
-        pass
-    return table
-
-
-METHODS = ("kane", "kane_paper", "lagrange", "newton_euler")
+# Formulation name -> udot(model, q, u, torques) (Pinocchio style: free functions).
+FORMULATIONS = {
+    "kane": kane.udot,
+    "kane_paper": kane_paper.udot,
+    "lagrange": lagrange.udot,
+    "newton_euler": newton_euler.udot,
+}
+METHODS = tuple(FORMULATIONS)
 
 
 class SnakeModel:
@@ -171,8 +159,7 @@ class SnakeModel:
         recursion), "lagrange" (eq. 27 multipliers) or "newton_euler"
         (Walker-Orin with multipliers).
         """
-        table = _formulations()
-        if method not in table:
-            raise ValueError(f"method must be one of {sorted(set(METHODS) | set(table))}, got {method!r}")
+        if method not in FORMULATIONS:
+            raise ValueError(f"method must be one of {list(METHODS)}, got {method!r}")
         q, u, torques = self._state(q, u, torques)
-        return table[method](self, q, u, torques)
+        return FORMULATIONS[method](self, q, u, torques)
