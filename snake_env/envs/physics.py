@@ -30,6 +30,8 @@ from snake_env.dynamics import compiled
 # Layout of the per-snake auxiliary output row (float64).
 AUX_X, AUX_Y, AUX_VX, AUX_VY, AUX_KINETIC, AUX_WORK, AUX_FAILED = range(7)
 AUX_SIZE = 7
+# Batches with fewer than this many coordinates (B * (n+2)) are stepped on one thread.
+PARALLEL_MIN_WORK = 512
 
 
 @dataclass(frozen=True)
@@ -181,6 +183,14 @@ def _step_batch(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt
 
 
 @njit(cache=True, nogil=True)
+def _step_batch_serial(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+                       q, u, torques, obs, aux):
+    for b in range(q.shape[0]):
+        _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+                  q[b], u[b], torques[b], obs[b], aux[b])
+
+
+@njit(cache=True, nogil=True)
 def _reset_one(m, h, inertia, include_position, noise, q, u, obs, aux):
     """Near-straight start: theta_k = noise_k, u = noise[n:], CM of the whole snake at the origin."""
     n = m.shape[0]
@@ -254,16 +264,24 @@ def step(params: PhysicsParams, q, u, torques):
     if torques.shape != q.shape[:-1] + (params.n_links - 1,):
         raise ValueError(f"torques must have shape {q.shape[:-1] + (params.n_links - 1,)}, got {torques.shape}")
     obs, aux = _outputs(params, q.shape[:-1])
-    kernel = _step_one if q.ndim == 1 else _step_batch
+    kernel = _kernel(q)
     kernel(params.mass, params.half_length, params.inertia, params.joint_damping, params.wheel_damping,
            params.joint_limit, params.limit_stiffness, params.limit_damping, params.sim_dt, params.frame_skip,
            params.include_position, q, u, torques, obs, aux)
     return q, u, obs, aux
 
 
+def _kernel(q):
+    if q.ndim == 1:
+        return _step_one
+    # threads pay off only for enough work per call; waking them costs more than
+    # stepping a few snakes (and far more on a loaded machine)
+    return _step_batch if q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK else _step_batch_serial
+
+
 def step_inplace(params: PhysicsParams, q, u, torques, obs, aux):
     """:func:`step` writing into caller-owned float64 C-contiguous buffers (the envs' hot path)."""
-    kernel = _step_one if q.ndim == 1 else _step_batch
+    kernel = _kernel(q)
     kernel(params.mass, params.half_length, params.inertia, params.joint_damping, params.wheel_damping,
            params.joint_limit, params.limit_stiffness, params.limit_damping, params.sim_dt, params.frame_skip,
            params.include_position, q, u, torques, obs, aux)

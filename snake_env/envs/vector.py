@@ -38,7 +38,8 @@ from .physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_VY, AUX_WORK, AUX_X, A
 from .snake import (DEFAULT_CTRL_COST_WEIGHT, DEFAULT_FRAME_SKIP, DEFAULT_JOINT_DAMPING, DEFAULT_JOINT_LIMIT,
                     DEFAULT_LIMIT_DAMPING, DEFAULT_LIMIT_STIFFNESS, DEFAULT_MAX_TORQUE, DEFAULT_RESET_NOISE_SCALE,
                     DEFAULT_SIM_DT, DEFAULT_WHEEL_DAMPING, RESET_INFO_KEYS, STEP_INFO_KEYS, TRAIL_LENGTH,
-                    _number, build_physics, check_actions, observation_space, observation_structure)
+                    _number, build_physics, check_actions, observation_space, observation_structure,
+                    squared_norm)
 
 AUTORESET_MODES = {mode.value: mode for mode in AutoresetMode}
 
@@ -205,7 +206,7 @@ class SnakeVectorEnv(VectorEnv):
             warnings.warn(f"snake_env: the simulated state became non-finite in {int(failed.sum())} sub-env(s); their "
                           "step was undone and the episode truncated (info['sim_failure'])", RuntimeWarning, stacklevel=2)
         reward_forward = self.forward_reward_weight * aux[:, AUX_VX]
-        ctrl_cost = self.ctrl_cost_weight * np.einsum("ij,ij->i", a, a)
+        ctrl_cost = self.ctrl_cost_weight * squared_norm(a)
         rewards = reward_forward - ctrl_cost
         self._steps += 1
         terminated = np.zeros(B, bool)
