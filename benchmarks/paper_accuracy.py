@@ -80,21 +80,48 @@ def _constant_torque(n, value, dtype):
     return lambda t, q, u: torques
 
 
+DEVIATION_THRESHOLDS = (1e-6, 1e-3)  # m: when single and double precision part ways
+
+
+def first_time_above(t, deviation, threshold):
+    """First time (s) the deviation exceeds ``threshold``, or None within the horizon."""
+    above = np.nonzero(deviation > threshold)[0]
+    return float(t[above[0]]) if above.size else None
+
+
+def head_deviation(run_a, run_b, n):
+    """|head CM of a - head CM of b| (T,) (m)."""
+    xa, ya, _ = _head(np.asarray(run_a.q, np.float64), n)
+    xb, yb, _ = _head(np.asarray(run_b.q, np.float64), n)
+    return np.hypot(xa - xb, ya - yb)
+
+
 def precision_metrics(runs, n):
-    """Max over time of |float32 - float64| for head x, y (m) and theta_1 (rad)."""
+    """single vs double precision: max and final head deviation (m), max theta_1
+    deviation (rad), and the first times the head deviation exceeds 1 um and 1 mm."""
     metrics = {}
     for method in ("kane", "lagrange"):
         a, b = runs[(method, "float64")], runs[(method, "float32")]
-        xa, ya, ta = _head(a.q, n)
-        xb, yb, tb = _head(b.q.astype(np.float64), n)
-        pos = np.hypot(xa - xb, ya - yb)
+        pos = head_deviation(a, b, n)
+        dtheta = np.abs(np.asarray(a.q[:, 0], np.float64) - np.asarray(b.q[:, 0], np.float64))
         metrics[method] = {
             "max_position_deviation_m": float(np.max(pos)),
             "final_position_deviation_m": float(pos[-1]),
-            "max_theta1_deviation_rad": float(np.max(np.abs(ta - tb))),
-            "final_head_position_m": [float(xa[-1]), float(ya[-1])],
+            "max_theta1_deviation_rad": float(np.max(dtheta)),
+            "final_head_position_m": [float(a.q[-1, n]), float(a.q[-1, n + 1])],
+            "time_above_s": {f"{thr:g}": first_time_above(a.t, pos, thr) for thr in DEVIATION_THRESHOLDS},
         }
     return metrics
+
+
+def sensitivity_metrics(energy_runs, n):
+    """Two double-precision runs of the same motion (Kane, and Lagrange's udot in
+    u-space) differ only by rounding: how soon do they part ways? This measures how
+    strongly the Table III motion amplifies rounding errors."""
+    pos = head_deviation(energy_runs["kane"], energy_runs["lagrange_u_space"], n)
+    t = energy_runs["kane"].t
+    return {"max_position_deviation_m": float(np.max(pos)),
+            "time_above_s": {f"{thr:g}": first_time_above(t, pos, thr) for thr in DEVIATION_THRESHOLDS}}
 
 
 def energy_metrics(runs):

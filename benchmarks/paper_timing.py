@@ -68,7 +68,7 @@ def time_call(fn, min_time: float, repeats: int) -> float:
     return best
 
 
-def measure(ns, batch_sizes=(1, 64), min_time: float = 0.05, repeats: int = 3, methods=tuple(TIMED)):
+def measure(ns, batch_sizes=(1, 64), min_time: float = 0.05, repeats: int = 5, methods=tuple(TIMED)):
     """{batch: {method: [seconds per state for each n]}}."""
     out = {}
     for batch in batch_sizes:
@@ -107,23 +107,26 @@ def plot_cpu_time(ax, ns, timings):
     ax.legend(fontsize=7, ncol=2)
 
 
-def plot_cpu_ratio(ax, ns, timings, op_ratio=None):
-    for batch, per_method in timings.items():
-        ls = "-" if batch == 1 else "--"
-        lag = np.asarray(per_method["lagrange"])
-        for ref, color in (("kane_paper", "C0"), ("kane", "C1")):
-            if ref in per_method:
-                ax.plot(ns, lag / np.asarray(per_method[ref]), ls, marker="o", ms=3, color=color,
-                        label=f"Lagrange / {TIMED_LABELS[ref]}, batch {batch}")
-    if op_ratio is not None:
-        for ref, color in (("kane_paper", "C0"), ("kane", "C1")):
-            ax.plot(ns, op_ratio[ref], ":", color=color, label=f"operation-count ratio (M + A), Lagrange / {TIMED_LABELS[ref]}")
-    ax.set_xlabel("number of links n")
-    ax.set_ylabel("CPU time ratio")
-    ax.set_yscale("log")
-    ax.set_title("Fig. 3: CPU time of Lagrange's method relative to Kane's")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+def plot_cpu_ratio(axes, ns, timings, op_ratio=None):
+    """Two panels, linear axes (the paper's claim is a linear ratio): Lagrange
+    over Kane (paper) and over the O(n) Kane sweep."""
+    for ax, ref in zip(axes, ("kane_paper", "kane")):
+        for batch, per_method in timings.items():
+            ls = "-" if batch == 1 else "--"
+            ratio = np.asarray(per_method["lagrange"]) / np.asarray(per_method[ref])
+            ax.plot(ns, ratio, ls, marker="o", ms=3, color="C3" if batch == 1 else "C0",
+                    label=f"measured, batch {batch}")
+            slope, intercept, r2 = linear_fit(ns, ratio)
+            ax.plot(ns, slope * np.asarray(ns) + intercept, ":", lw=1, color="C3" if batch == 1 else "C0",
+                    label=f"line fit, batch {batch}: {slope:.2f} n + {intercept:.1f} (R^2 {r2:.2f})")
+        if op_ratio is not None:
+            ax.plot(ns, op_ratio[ref], "k-.", lw=1, label="operation-count ratio (M + A)")
+        ax.set_xlabel("number of links n")
+        ax.set_ylabel("CPU time ratio")
+        ax.set_title(f"Lagrange / {TIMED_LABELS[ref]}", fontsize=10)
+        ax.set_ylim(bottom=0)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
 
 
 COLORS = {"kane_paper": "C0", "kane": "C1", "lagrange": "C3", "newton_euler": "C2", "kane_compiled": "C7"}
