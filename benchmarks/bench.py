@@ -31,11 +31,11 @@ class BenchConfig:
     """Sizes of every section; FULL fits in ~10 minutes on 2 cores, QUICK in seconds."""
 
     single_links: tuple = (3, 5, 30)
-    single_steps: int = 10_000
+    single_sample_time: float = 1.0  # s per repeat
     single_rounds: int = 5
     vector_links: int = 5
     vector_num_envs: tuple = (1, 8, 64, 256, 1024, 4096)
-    vector_env_steps: int = 400_000  # env-steps per round; batch steps = this / num_envs
+    vector_sample_time: float = 1.0  # s per repeat
     vector_rounds: int = 3
     udot_n: tuple = (10, 20, 50, 100, 200, 500, 1000)
     udot_min_time: float = 0.05  # s of repeated calls per timing block
@@ -53,8 +53,8 @@ class BenchConfig:
 
 FULL = BenchConfig()
 QUICK = BenchConfig(
-    single_steps=300, single_rounds=2,
-    vector_num_envs=(4, 16), vector_env_steps=320, vector_rounds=2,
+    single_sample_time=0.05, single_rounds=2,
+    vector_num_envs=(4, 16), vector_sample_time=0.05, vector_rounds=2,
     udot_n=(10, 20, 40), udot_min_time=0.002, udot_max_call_time=0.05,
     ppo_num_envs=4, ppo_rounds=1, ppo_kwargs={"n_steps": 64, "batch_size": 32, "n_epochs": 1},
     memory_num_envs=64, memory_steps=5, startup_runs=1,
@@ -103,10 +103,10 @@ def run_sections(config: BenchConfig, sections, log=print) -> dict:
 
     if "single" in sections:
         ids = ([bench_sections.SWIMMER_ID] if has_mujoco else []) + [bench_sections.snake_id(n) for n in config.single_links]
-        attempt("single_env", lambda: bench_sections.single_env_speeds(ids, config.single_steps, config.single_rounds))
+        attempt("single_env", lambda: bench_sections.single_env_speeds(ids, config.single_sample_time, config.single_rounds))
     if "vector" in sections:
         attempt("vector_env", lambda: bench_sections.vector_env_speeds(
-            config.vector_links, config.vector_num_envs, config.vector_env_steps, config.vector_rounds))
+            config.vector_links, config.vector_num_envs, config.vector_sample_time, config.vector_rounds))
     if "udot" in sections:
         attempt("udot", lambda: bench_sections.udot_scaling(config.udot_n, config.udot_min_time, config.udot_max_call_time))
     if "ppo" in sections:

@@ -46,19 +46,26 @@ def _fixed_actions(space, count: int, seed: int) -> list:
     return [rng.uniform(low, high).astype(space.dtype) for _ in range(count)]
 
 
-def _time_single_env(env, actions, steps: int) -> float:
-    """Steps per second of ``env.step`` (resets on episode end are counted in the time)."""
+def _time_single_env(env, actions, sample_time: float) -> float:
+    """Steps per second of ``env.step`` over about ``sample_time`` seconds
+    (resets at episode end are part of the time, as in training)."""
     env.reset(seed=0)
     n_actions = len(actions)
+    steps = 0
     start = time.perf_counter()
-    for i in range(steps):
-        _, _, terminated, truncated, _ = env.step(actions[i % n_actions])
-        if terminated or truncated:
-            env.reset()
-    return steps / (time.perf_counter() - start)
+    deadline = start + sample_time
+    while True:
+        for i in range(100):  # check the clock every 100 steps only
+            _, _, terminated, truncated, _ = env.step(actions[i % n_actions])
+            if terminated or truncated:
+                env.reset()
+        steps += 100
+        now = time.perf_counter()
+        if now >= deadline:
+            return steps / (now - start)
 
 
-def single_env_speeds(env_ids, steps: int, rounds: int) -> dict:
+def single_env_speeds(env_ids, sample_time: float, rounds: int) -> dict:
     """Single-env steps/s of each id, made with ``gym.make`` (default wrappers
     included, as users get them), interleaved over ``rounds``."""
     import gymnasium as gym
@@ -68,20 +75,20 @@ def single_env_speeds(env_ids, steps: int, rounds: int) -> dict:
     envs = {env_id: gym.make(env_id) for env_id in env_ids}
     actions = {env_id: _fixed_actions(env.action_space, 256, seed=1) for env_id, env in envs.items()}
     for env_id, env in envs.items():  # warm-up: compile/load kernels, allocate
-        _time_single_env(env, actions[env_id], min(steps, 200))
+        _time_single_env(env, actions[env_id], 0.1 * sample_time)
     samples = {env_id: [] for env_id in env_ids}
     for _ in range(rounds):
         for env_id, env in envs.items():
-            samples[env_id].append(_time_single_env(env, actions[env_id], steps))
+            samples[env_id].append(_time_single_env(env, actions[env_id], sample_time))
     for env in envs.values():
         env.close()
-    return {env_id: {"steps_per_s": max(s), "samples": s, "steps": steps} for env_id, s in samples.items()}
+    return {env_id: {"steps_per_s": max(s), "samples": s, "sample_time_s": sample_time} for env_id, s in samples.items()}
 
 
 # --------------------------------------------------------------------------- vector env
-def vector_env_speeds(n_links: int, num_envs_list, batch_steps: int, rounds: int) -> dict:
+def vector_env_speeds(n_links: int, num_envs_list, sample_time: float, rounds: int) -> dict:
     """env-steps/s of ``gym.make_vec(..., vectorization_mode="vector_entry_point")``
-    at each number of envs (autoreset included)."""
+    at each number of envs, each sample about ``sample_time`` seconds (autoreset included)."""
     import gymnasium as gym
 
     import snake_env  # noqa: F401
@@ -93,14 +100,21 @@ def vector_env_speeds(n_links: int, num_envs_list, batch_steps: int, rounds: int
         space = envs.action_space
         actions = [rng.uniform(space.low, space.high).astype(space.dtype) for _ in range(8)]
         envs.reset(seed=0)
-        for i in range(min(batch_steps, 20)):  # warm-up
+        for i in range(3):  # warm-up
             envs.step(actions[i % 8])
         samples = []
+        batch_steps = []
         for _ in range(rounds):
+            steps = 0
             start = time.perf_counter()
-            for i in range(batch_steps):
-                envs.step(actions[i % 8])
-            samples.append(num_envs * batch_steps / (time.perf_counter() - start))
+            while True:
+                envs.step(actions[steps % 8])
+                steps += 1
+                now = time.perf_counter()
+                if now - start >= sample_time:
+                    break
+            samples.append(num_envs * steps / (now - start))
+            batch_steps.append(steps)
         envs.close()
         results[str(num_envs)] = {"env_steps_per_s": max(samples), "samples": samples, "batch_steps": batch_steps}
     return results
@@ -199,7 +213,7 @@ def ppo_speeds(snake_links: int, snake_num_envs: int, iterations: int, rounds: i
     from agents.sb3_vec_env import SnakeSB3VecEnv
 
     n_steps = ppo_kwargs.get("n_steps", 2048)
-    snake_env = SnakeSB3VecEnv(snake_id(snake_links), num_envs=snake_num_envs, seed=0)
+    snake_env = SnakeSB3VecEnv(snake_id(snake_links), num_envs=snake_num_envs)
     samples = {"snake": [], "swimmer": []}
     for _ in range(rounds):
         samples["snake"].append(_ppo_run(snake_env, iterations * n_steps * snake_num_envs, ppo_kwargs))
@@ -228,23 +242,25 @@ def _run_child(code: str, timeout: float) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+# VmHWM (the kernel's peak RSS of this process), not getrusage's ru_maxrss:
+# Linux carries ru_maxrss across fork + exec, so a child of a big parent
+# (torch loaded) would report the parent's size.
 MEMORY_CHILD = """
-import json, resource
-def rss_mb():
+import json
+def status_mb(field):
     with open("/proc/self/status") as f:
         for line in f:
-            if line.startswith("VmRSS:"):
+            if line.startswith(field + ":"):
                 return int(line.split()[1]) / 1024.0
 import gymnasium as gym, numpy as np, snake_env
-base = rss_mb()
+base = status_mb("VmRSS")
 envs = gym.make_vec("snake_env/Snake{n_links}-v0", num_envs={num_envs}, vectorization_mode="vector_entry_point")
 envs.reset(seed=0)
 action = np.zeros(envs.action_space.shape, dtype=envs.action_space.dtype)
 for _ in range({steps}):
     envs.step(action)
-current = rss_mb()
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
-print(json.dumps({{"peak_rss_mb": peak, "rss_after_imports_mb": base, "rss_after_steps_mb": current}}))
+print(json.dumps({{"peak_rss_mb": status_mb("VmHWM"), "rss_after_imports_mb": base,
+                  "rss_after_steps_mb": status_mb("VmRSS")}}))
 """
 
 

@@ -107,48 +107,83 @@ def derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, 
 def rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps):
     """Advance one state (q, u) in place by ``n_substeps`` RK4 steps of ``dt``
     with torques held constant; return the work of all loads (J)."""
+    workspace = np.empty(rk4_workspace_size(q.shape[0]))
+    return rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps,
+                              workspace)
+
+
+@njit(cache=True, nogil=True)
+def rk4_workspace_size(nq):
+    """Scratch floats :func:`rk4_step_workspace` needs for nq = n + 2 coordinates."""
+    return 3 * nq + 6
+
+
+@njit(cache=True, nogil=True)
+def rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps,
+                       workspace):
+    """:func:`rk4_step` with caller-owned scratch (``rk4_workspace_size(n+2)``
+    floats), so a loop over many steps or snakes allocates nothing.
+
+    The four stage derivatives are summed into one accumulator as they come
+    (k1 + 2 k2 + 2 k3 + k4), so only the stage state, the current stage
+    derivative and the sum are stored.
+    """
     nq = q.shape[0]
-    k1q = np.empty(nq)
-    k2q = np.empty(nq)
-    k3q = np.empty(nq)
-    k4q = np.empty(nq)
-    k1u = np.empty(2)
-    k2u = np.empty(2)
-    k3u = np.empty(2)
-    k4u = np.empty(2)
-    qs = np.empty(nq)
-    us = np.empty(2)
+    qs = workspace[0:nq]
+    kq = workspace[nq:2 * nq]
+    acc_q = workspace[2 * nq:3 * nq]
+    us = workspace[3 * nq:3 * nq + 2]
+    ku = workspace[3 * nq + 2:3 * nq + 4]
+    acc_u = workspace[3 * nq + 4:3 * nq + 6]
+    half = 0.5 * dt
+    sixth = dt / 6.0
     work = 0.0
     for _ in range(n_substeps):
-        p1 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, k1q, k1u)
+        # stage 1 at (q, u)
+        p1 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, kq, ku)
         for j in range(nq):
-            qs[j] = q[j] + 0.5 * dt * k1q[j]
-        us[0] = u[0] + 0.5 * dt * k1u[0]
-        us[1] = u[1] + 0.5 * dt * k1u[1]
-        p2 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, k2q, k2u)
+            acc_q[j] = kq[j]
+            qs[j] = q[j] + half * kq[j]
+        acc_u[0] = ku[0]
+        acc_u[1] = ku[1]
+        us[0] = u[0] + half * ku[0]
+        us[1] = u[1] + half * ku[1]
+        # stage 2 at the midpoint predicted by stage 1
+        p2 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
         for j in range(nq):
-            qs[j] = q[j] + 0.5 * dt * k2q[j]
-        us[0] = u[0] + 0.5 * dt * k2u[0]
-        us[1] = u[1] + 0.5 * dt * k2u[1]
-        p3 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, k3q, k3u)
+            acc_q[j] += 2.0 * kq[j]
+            qs[j] = q[j] + half * kq[j]
+        acc_u[0] += 2.0 * ku[0]
+        acc_u[1] += 2.0 * ku[1]
+        us[0] = u[0] + half * ku[0]
+        us[1] = u[1] + half * ku[1]
+        # stage 3 at the midpoint predicted by stage 2
+        p3 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
         for j in range(nq):
-            qs[j] = q[j] + dt * k3q[j]
-        us[0] = u[0] + dt * k3u[0]
-        us[1] = u[1] + dt * k3u[1]
-        p4 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, k4q, k4u)
+            acc_q[j] += 2.0 * kq[j]
+            qs[j] = q[j] + dt * kq[j]
+        acc_u[0] += 2.0 * ku[0]
+        acc_u[1] += 2.0 * ku[1]
+        us[0] = u[0] + dt * ku[0]
+        us[1] = u[1] + dt * ku[1]
+        # stage 4 at the end point predicted by stage 3
+        p4 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
         for j in range(nq):
-            q[j] += dt / 6.0 * (k1q[j] + 2.0 * k2q[j] + 2.0 * k3q[j] + k4q[j])
-        u[0] += dt / 6.0 * (k1u[0] + 2.0 * k2u[0] + 2.0 * k3u[0] + k4u[0])
-        u[1] += dt / 6.0 * (k1u[1] + 2.0 * k2u[1] + 2.0 * k3u[1] + k4u[1])
-        work += dt / 6.0 * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
+            q[j] += sixth * (acc_q[j] + kq[j])
+        u[0] += sixth * (acc_u[0] + ku[0])
+        u[1] += sixth * (acc_u[1] + ku[1])
+        work += sixth * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
     return work
 
 
 @njit(cache=True, parallel=True)
 def rk4_step_batch(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work):
     """Batched :func:`rk4_step`: q (B, n+2), u (B, 2), torques (B, n-1) in place; work (B,) out."""
+    size = rk4_workspace_size(q.shape[1])
     for b in prange(q.shape[0]):
-        work[b] = rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q[b], u[b], torques[b], dt, n_substeps)
+        workspace = np.empty(size)
+        work[b] = rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q[b], u[b], torques[b],
+                                     dt, n_substeps, workspace)
 
 
 @njit(cache=True, parallel=True)
