@@ -89,8 +89,8 @@ class SnakeRenderer:
         self.grid_step = max(k * base for k in (1, 2, 5) if k * base <= raw)  # m, a 1-2-5 spacing
         link_width = 0.18 * float(np.mean(2.0 * self.half_length))  # m, drawn body width
         self.body_radius = max(1.5, 0.5 * link_width * self.scale)
-        self.wheel_radius = max(1.0, 0.35 * self.body_radius)
-        self.wheel_half = max(2.0, 0.3 * float(np.mean(self.half_length)) * self.scale)
+        self.wheel_radius = max(1.0, 0.55 * self.body_radius)  # half the tyre width (px)
+        self.wheel_half = max(2.0, 0.45 * float(np.mean(self.half_length)) * self.scale)  # half the tyre length (px)
         self.colors = [LINK_TAIL + (LINK_FRONT - LINK_TAIL) * (k / max(n - 1, 1)) for k in range(n)]
 
     def to_pixels(self, xy, center):
@@ -132,14 +132,14 @@ class SnakeRenderer:
         canvas[:] = BACKGROUND
         self._grid(canvas, center)
         if trail is not None and len(trail) > 1:
-            _polyline(canvas, self.to_pixels(trail, center), TRAIL, thickness=2)
+            _polyline(canvas, self.to_pixels(trail, center), TRAIL, thickness=3)
         ends0 = self.to_pixels(cms - e * h[:, None], center)
         ends1 = self.to_pixels(cms + e * h[:, None], center)
         mids = self.to_pixels(cms, center)
         # wheels under the body: a pair per link, across the link at its CM, rolling along e_k
         normal = np.stack([e[:, 1], e[:, 0]], axis=-1)  # perpendicular in pixel coords (row axis flipped)
         along = np.stack([e[:, 0], -e[:, 1]], axis=-1)
-        offset = 1.25 * self.body_radius
+        offset = 1.2 * self.body_radius + self.wheel_radius
         for k in range(n):
             for side in (-1.0, 1.0):
                 c = mids[k] + side * offset * normal[k]
@@ -148,7 +148,7 @@ class SnakeRenderer:
             _capsule(canvas, ends0[k], ends1[k], self.body_radius, self.colors[k])
         for k in range(n - 1):
             _capsule(canvas, ends1[k], ends1[k], 0.55 * self.body_radius, JOINT)
-        _capsule(canvas, mids[0], mids[0], 0.5 * self.body_radius, LINK1_MARK)
+        _capsule(canvas, mids[0], mids[0], 0.6 * self.body_radius, LINK1_MARK)  # link 1: (x, y) of eq. 1
         return canvas.astype(np.uint8)
 
 
