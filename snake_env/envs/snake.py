@@ -128,14 +128,17 @@ def observation_space(n_links: int, include_position: bool) -> spaces.Box:
 def check_actions(action, shape: tuple) -> np.ndarray:
     """Actions as float64 clipped to [-1, 1]; wrong shape or NaN/inf -> ValueError."""
     try:
-        a = np.asarray(action, dtype=np.float64)
+        a = np.array(action, dtype=np.float64)  # a copy: clipped in place below
     except (TypeError, ValueError):
         raise ValueError(f"action must be a real array of shape {shape} in [-1, 1], got {action!r}") from None
     if a.shape != shape:
         raise ValueError(f"action must have shape {shape} (one value in [-1, 1] per joint), got {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise ValueError("action must be finite (no NaN or inf); values outside [-1, 1] are clipped")
-    return np.clip(a, -1.0, 1.0)
+    # minimum/maximum in place: several times cheaper than np.clip on small arrays
+    np.minimum(a, 1.0, out=a)
+    np.maximum(a, -1.0, out=a)
+    return a
 
 
 def squared_norm(a: np.ndarray) -> np.ndarray:
@@ -165,8 +168,8 @@ class SnakeEnv(gym.Env):
     The soft limit is a torque -k (phi - limit) - c phidot applied beyond
     |phi_k| > joint_limit; since the joints are not independent degrees of
     freedom it acts through the constraints and does not always hold
-    |phi_k| below the limit (random actions can fold an n = 5 snake to about
-    130 deg for a while; adjacent links have not been seen to fold over).
+    |phi_k| below the limit (random actions can fold an n = 5 snake to
+    125-140 deg for a while; adjacent links have not been seen to fold over).
 
     Link 1 is the link whose CM is (x, y) in eq. 1; link k+1 is attached to
     the +e_k end of link k, so with theta = 0 link n is the one furthest along +x.

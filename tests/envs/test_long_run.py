@@ -5,7 +5,7 @@ links never fold onto each other and the damping keeps the snake's speed bounded
 The soft joint limits cannot keep every |phi_k| below 90 deg: with two degrees
 of freedom the joints are not independent, and the limit torque acts only
 through the constraints (eq. 11 projected on u). Random actions can trap an
-n = 5 snake in a folded shape near 130 deg for long stretches, so the bound
+n = 5 snake in a folded shape at 125-140 deg for long stretches, so the bound
 checked here is that links never fold over (|phi| < 0.9 pi).
 """
 

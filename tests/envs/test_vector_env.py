@@ -185,3 +185,14 @@ def test_pickle_continues_identically(rng):
         r1, r2 = vec.step(a), clone.step(a)
         for x, y in zip(r1[:4], r2[:4]):
             np.testing.assert_array_equal(x, y)
+
+
+def test_sync_vectorization_of_the_single_env_agrees():
+    """Gymnasium's own SyncVectorEnv over SnakeEnv (num_envs=1, same seed) gives the same rollout."""
+    ours = gym.make_vec("snake_env/Snake5-v0", num_envs=1, vectorization_mode="vector_entry_point", max_episode_steps=20)
+    sync = gym.make_vec("snake_env/Snake5-v0", num_envs=1, vectorization_mode="sync", max_episode_steps=20)
+    np.testing.assert_array_equal(ours.reset(seed=9)[0], sync.reset(seed=9)[0])
+    for a in np.random.default_rng(3).uniform(-1, 1, (45, 1, 4)).astype(np.float32):
+        r1, r2 = ours.step(a), sync.step(a)
+        for x, y in zip(r1[:4], r2[:4]):
+            np.testing.assert_array_equal(x, y)
