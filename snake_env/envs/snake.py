@@ -378,7 +378,7 @@ class SnakeEnv(gym.Env):
         info = {
             "x_position": float(aux[AUX_X]),
             "y_position": float(aux[AUX_Y]),
-            "distance_from_origin": math.hypot(aux[AUX_X], aux[AUX_Y]),
+            "distance_from_origin": float(np.hypot(aux[AUX_X], aux[AUX_Y])),  # as the vector env computes it
             "x_velocity": float(aux[AUX_VX]),
             "y_velocity": float(aux[AUX_VY]),
             "reward_forward": float(reward_forward),
@@ -396,7 +396,7 @@ class SnakeEnv(gym.Env):
         return {
             "x_position": float(aux[AUX_X]),
             "y_position": float(aux[AUX_Y]),
-            "distance_from_origin": math.hypot(aux[AUX_X], aux[AUX_Y]),
+            "distance_from_origin": float(np.hypot(aux[AUX_X], aux[AUX_Y])),  # as the vector env computes it
             "kinetic_energy": float(aux[AUX_KINETIC]),
         }
 

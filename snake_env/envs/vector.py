@@ -23,7 +23,6 @@ sub-envs and ``info["_" + key]`` a bool mask of the sub-envs it holds data for.
 
 from __future__ import annotations
 
-import math
 import warnings
 from typing import Any
 

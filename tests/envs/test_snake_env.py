@@ -13,7 +13,6 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-from snake_env.dynamics import SnakeModel
 from snake_env.envs import SnakeEnv
 
 from .conftest import ALL_IDS

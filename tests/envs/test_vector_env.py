@@ -196,3 +196,8 @@ def test_sync_vectorization_of_the_single_env_agrees():
         r1, r2 = ours.step(a), sync.step(a)
         for x, y in zip(r1[:4], r2[:4]):
             np.testing.assert_array_equal(x, y)
+        info1, info2 = r1[4], r2[4]
+        present = {k for k in info1 if not k.startswith("_") and info1["_" + k][0]}
+        assert present == {k for k in info2 if not k.startswith("_")}  # reset steps carry only the reset info
+        for key in present:
+            assert info1[key][0] == info2[key][0], key
