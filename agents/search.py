@@ -1,0 +1,241 @@
+"""Search of serpenoid-gait parameters per env id (numpy only).
+
+Both gait families of :mod:`agents.serpenoid` are searched: uniform random
+samples in a box, then a few generations of a (mu, lambda) evolution
+strategy around the best (a simple CMA-ES stand-in with a shrinking
+isotropic step in box-normalized coordinates). A whole population is one
+batched vector env (one gait per sub-env), so a generation is one rollout.
+The few best gaits are re-scored on full-length episodes with fresh seeds and
+the best is written to ``configs/serpenoid.yaml`` under the env id.
+
+Score: mean forward speed of the snake's centre of mass, the mean of the
+env's ``info["x_velocity"]`` (m/s) over the episode, i.e. x displacement / time.
+
+    python -m agents.search --env snake_env/Snake5-v0
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from agents.serpenoid import FAMILIES, SerpenoidController, SerpenoidParams
+
+DEFAULT_OUTPUT = Path(__file__).resolve().parent.parent / "configs" / "serpenoid.yaml"
+
+# Search boxes: (name, low, high, log-scale). Frequencies up to 40 rad/s keep
+# >= 4 env steps (0.04 s each, the policy's control period too) per gait
+# period; "pd" amplitudes stay inside the default +-90 deg joint limit.
+BOXES = {
+    "torque": (("amplitude", 0.05, 1.0, False), ("frequency", 0.5, 40.0, True),
+               ("phase_lag", -math.pi, math.pi, False)),
+    "pd": (("amplitude", 0.05, 1.5, False), ("frequency", 0.5, 40.0, True),
+           ("phase_lag", -math.pi, math.pi, False), ("kp", 0.3, 30.0, True), ("kd", 0.0, 2.0, False)),
+}
+
+
+@dataclass
+class SearchResult:
+    params: SerpenoidParams
+    speed: float  # m/s, mean over the final re-scoring episodes
+    speed_std: float  # m/s, over those episodes
+    evaluated: int  # gaits rolled out during the search
+    seconds: float
+
+
+def env_geometry(env_id: str, env_kwargs: dict) -> tuple[int, float, float, bool]:
+    """(n_links, max_torque (N m), dt (s), include_position) of a snake env."""
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401
+
+    env = gym.make(env_id, **env_kwargs)
+    try:
+        base = env.unwrapped
+        return (int(base.n_links), float(base.max_torque), float(base.dt),
+                not bool(getattr(base, "exclude_current_positions_from_observation", True)))
+    finally:
+        env.close()
+
+
+def rollout_speeds(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int) -> np.ndarray:
+    """Mean forward CM speed (m/s) of each gait in ``plist`` over ``n_steps``
+    env steps, all gaits stepped together in one batched vector env."""
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401
+
+    n_links, max_torque, dt, include_position = env_geometry(env_id, env_kwargs)
+    num = len(plist)
+    envs = gym.make_vec(env_id, num_envs=num, vectorization_mode="vector_entry_point", **env_kwargs)
+    try:
+        controller = SerpenoidController(plist, n_links, max_torque, dt, num_envs=num,
+                                         include_position=include_position)
+        obs, _ = envs.reset(seed=seed)
+        total = np.zeros(num)
+        for _ in range(n_steps):
+            obs, _, terminated, truncated, info = envs.step(controller.act(obs))
+            total += np.asarray(info["x_velocity"], dtype=np.float64)
+            if np.any(terminated | truncated):
+                break  # n_steps never exceeds the episode length, so this is a failure
+        return total / n_steps
+    finally:
+        envs.close()
+
+
+def _decode(family: str, unit: np.ndarray) -> list[SerpenoidParams]:
+    """Box-normalized points in [0, 1]^d -> gaits."""
+    box = BOXES[family]
+    out = []
+    for row in np.clip(unit, 0.0, 1.0):
+        values = {}
+        for x, (name, low, high, log) in zip(row, box):
+            values[name] = float(math.exp(math.log(low) + x * (math.log(high) - math.log(low)))) if log \
+                else float(low + x * (high - low))
+        out.append(SerpenoidParams(family=family, **values))
+    return out
+
+
+def search_family(family: str, score, rng: np.random.Generator, population: int, generations: int,
+                  elite: int) -> tuple[np.ndarray, np.ndarray]:
+    """Random search then a (mu, lambda)-ES; return (unit points, scores) of every gait tried."""
+    dim = len(BOXES[family])
+    points = rng.uniform(size=(population, dim))
+    scores = score(_decode(family, points))
+    tried_points, tried_scores = [points], [scores]
+    sigma = 0.15
+    for _ in range(generations):
+        all_points = np.concatenate(tried_points)
+        all_scores = np.concatenate(tried_scores)
+        parents = all_points[np.argsort(-all_scores)[:elite]]
+        children = parents[rng.integers(elite, size=population)] + sigma * rng.standard_normal((population, dim))
+        # phase lag is periodic: wrap it instead of clipping at the box edge
+        lag = [name for name, *_ in BOXES[family]].index("phase_lag")
+        children[:, lag] %= 1.0
+        children = np.clip(children, 0.0, 1.0)
+        tried_points.append(children)
+        tried_scores.append(score(_decode(family, children)))
+        sigma *= 0.75
+    return np.concatenate(tried_points), np.concatenate(tried_scores)
+
+
+def search(env_id: str, env_kwargs: dict | None = None, families=FAMILIES, population: int = 192,
+           generations: int = 10, elite: int = 8, search_steps: int = 400, final_steps: int = 1000,
+           final_episodes: int = 4, finalists: int = 4, seed: int = 0) -> SearchResult:
+    """Best serpenoid gait for ``env_id`` over both families (see module doc)."""
+    env_kwargs = dict(env_kwargs or {})
+    for name, value in (("population", population), ("elite", elite), ("search_steps", search_steps),
+                        ("final_steps", final_steps), ("final_episodes", final_episodes), ("finalists", finalists)):
+        if not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if not isinstance(generations, int) or generations < 0:
+        raise ValueError(f"generations must be an integer >= 0, got {generations!r}")
+    unknown = [f for f in families if f not in FAMILIES]
+    if unknown or not families:
+        raise ValueError(f"families must be a non-empty subset of {list(FAMILIES)}, got {list(families)}")
+    rng = np.random.default_rng(seed)
+    started = time.perf_counter()
+    evaluated = 0
+    candidates = []
+    for family in families:
+        def score(plist):
+            nonlocal evaluated
+            evaluated += len(plist)
+            return rollout_speeds(env_id, env_kwargs, plist, search_steps, int(rng.integers(2**31)))
+
+        points, scores = search_family(family, score, rng, population, generations, min(elite, population))
+        order = np.argsort(-scores)[:finalists]
+        candidates += _decode(family, points[order])
+    # re-score the finalists of both families on full episodes with fresh seeds
+    per_episode = np.stack([
+        rollout_speeds(env_id, env_kwargs, candidates, final_steps, seed + 1000 + episode)
+        for episode in range(final_episodes)])
+    mean = per_episode.mean(axis=0)
+    best = int(np.argmax(mean))
+    return SearchResult(params=candidates[best], speed=float(mean[best]), speed_std=float(per_episode[:, best].std()),
+                        evaluated=evaluated + len(candidates) * final_episodes,
+                        seconds=time.perf_counter() - started)
+
+
+def load_gaits(path=DEFAULT_OUTPUT) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} must hold a mapping keyed by env id")
+    return data
+
+
+def load_params(env_id: str, path=DEFAULT_OUTPUT) -> tuple[SerpenoidParams, dict]:
+    """(gait, env_kwargs it was searched with) for ``env_id`` from ``configs/serpenoid.yaml``."""
+    data = load_gaits(path)
+    if env_id not in data:
+        raise ValueError(f"no serpenoid gait for env {env_id!r} in {path}; available: {sorted(data)} "
+                         f"(run: python -m agents.search --env {env_id})")
+    entry = data[env_id]
+    if not isinstance(entry, dict) or "params" not in entry:
+        raise ValueError(f"entry {env_id!r} of {path} must be a mapping with 'params'")
+    return SerpenoidParams.from_dict(entry["params"]), dict(entry.get("env_kwargs") or {})
+
+
+def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAULT_OUTPUT, note: str = "") -> None:
+    """Merge the result into the YAML under ``env_id`` (atomic write)."""
+    path = Path(path)
+    data = load_gaits(path)
+    data[env_id] = {
+        "params": result.params.to_dict(),
+        "env_kwargs": dict(env_kwargs),
+        "search": {"mean_forward_velocity": round(result.speed, 5), "std_forward_velocity": round(result.speed_std, 5),
+                   "gaits_evaluated": result.evaluated, "seconds": round(result.seconds, 1),
+                   **({"note": note} if note else {})},
+    }
+    header = ("# Serpenoid gaits found by `python -m agents.search --env ID` (see agents/search.py).\n"
+              "# params: agents.serpenoid.SerpenoidParams; velocities in m/s (CM, along x).\n")
+    text = header + yaml.safe_dump(dict(sorted(data.items())), sort_keys=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m agents.search", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", dest="env_id", required=True, help="gymnasium env id, e.g. snake_env/Snake5-v0")
+    parser.add_argument("--families", nargs="+", default=list(FAMILIES), help=f"subset of {list(FAMILIES)}")
+    parser.add_argument("--population", type=int, default=192)
+    parser.add_argument("--generations", type=int, default=10)
+    parser.add_argument("--search-steps", type=int, default=400, help="env steps per search rollout")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--output", default=str(DEFAULT_OUTPUT), help="YAML to merge the result into")
+    parser.add_argument("--dry-run", action="store_true", help="print the result, do not write it")
+    args = parser.parse_args(argv)
+    try:
+        result = search(args.env_id, {}, families=args.families, population=args.population,
+                        generations=args.generations, search_steps=args.search_steps, seed=args.seed)
+    except ValueError as exc:
+        parser.exit(2, f"{parser.prog}: error: {exc}\n")
+    print(f"{args.env_id}: {result.params} -> {result.speed:.4f} +- {result.speed_std:.4f} m/s "
+          f"({result.evaluated} gaits, {result.seconds:.0f} s)")
+    if not args.dry_run:
+        save_result(args.env_id, {}, result, args.output)
+        print(f"saved to {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

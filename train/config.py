@@ -1,0 +1,338 @@
+"""Training configuration as data, RL Baselines3 Zoo style.
+
+A hyperparameter YAML (``configs/ppo.yaml``, ``configs/sac.yaml``) is keyed by
+env id; each entry mixes the zoo's meta keys (``policy``, ``n_timesteps``,
+``n_envs``, ``normalize``, ``policy_kwargs``, ``env_kwargs``) with the
+algorithm's constructor arguments (``gamma``, ``n_steps``, ...). The config
+flows once: YAML entry -> ``--set key=value`` overrides -> explicit CLI flags
+(``--total-timesteps``, ``--n-envs``, ``--seed``), merged into one flat dict
+that is validated here and saved as ``config.yaml`` beside the model.
+
+Unknown keys and unknown algorithms are errors that list the valid ones.
+"""
+
+from __future__ import annotations
+
+import ast
+import copy
+import inspect
+import numbers
+from pathlib import Path
+
+import yaml
+
+from train.atomic import atomic_write_text
+
+ALGOS = ("ppo", "sac")
+
+# Keys that are not algorithm constructor arguments (the zoo's meta keys plus
+# the run-control keys of this project).
+META_DEFAULTS = {
+    "policy": "MlpPolicy",
+    "n_timesteps": 100_000,
+    "n_envs": 1,
+    # zoo convention: true -> VecNormalize(norm_obs=True, norm_reward=True);
+    # a dict (or its string form) -> VecNormalize(**dict)
+    "normalize": False,
+    "policy_kwargs": {},
+    "env_kwargs": {},
+    # "batched": one SnakeSB3VecEnv over the batched vector env; "dummy": SB3 DummyVecEnv
+    "vec_env": "batched",
+    "eval_freq": 20_000,  # env steps (summed over envs) between evaluations
+    "n_eval_episodes": 4,
+    "checkpoint_freq": 50_000,  # env steps (summed over envs) between checkpoints
+    "torch_threads": 1,  # the training machine is shared; 1 thread avoids oversubscription
+}
+RUN_KEYS = ("algo", "env_id", "seed")
+VEC_ENV_KINDS = ("batched", "dummy")
+NORMALIZE_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon")
+# filled by the algorithm, never by the user
+_RESERVED_ALGO_ARGS = {"self", "policy", "env", "verbose", "tensorboard_log", "seed", "device",
+                       "_init_setup_model", "policy_kwargs", "stats_window_size"}
+# string values of these keys may be zoo-style schedules "lin_<float>"
+SCHEDULE_KEYS = ("learning_rate", "clip_range")
+ACTIVATIONS = {"nn.ReLU": "ReLU", "nn.Tanh": "Tanh", "nn.ELU": "ELU", "nn.LeakyReLU": "LeakyReLU",
+               "nn.SiLU": "SiLU", "nn.GELU": "GELU"}
+
+
+class ConfigError(ValueError):
+    """A configuration problem; the message is one line fit for a CLI error."""
+
+
+def algo_class(algo: str):
+    from stable_baselines3 import PPO, SAC
+
+    check_algo(algo)
+    return {"ppo": PPO, "sac": SAC}[algo]
+
+
+def check_algo(algo) -> str:
+    if algo not in ALGOS:
+        raise ConfigError(f"algo must be one of {list(ALGOS)}, got {algo!r}")
+    return algo
+
+
+def algo_arguments(algo: str) -> list[str]:
+    """Constructor arguments of the SB3 algorithm that a config may set."""
+    params = inspect.signature(algo_class(algo).__init__).parameters
+    return sorted(p for p in params if p not in _RESERVED_ALGO_ARGS)
+
+
+def valid_keys(algo: str) -> list[str]:
+    return sorted(set(META_DEFAULTS) | set(RUN_KEYS) | set(algo_arguments(algo)))
+
+
+def default_config_path(algo: str) -> Path:
+    """``configs/<algo>.yaml`` of the repository (or of the installed package data)."""
+    return Path(__file__).resolve().parent.parent / "configs" / f"{check_algo(algo)}.yaml"
+
+
+def coerce_scalar(value):
+    """YAML 1.1 reads ``3e-4`` as a string; numbers written that way become floats."""
+    if isinstance(value, str):
+        try:
+            as_float = float(value)
+        except ValueError:
+            return value
+        if value.strip().lower() in ("nan", "inf", "-inf", "+inf", "infinity", "-infinity"):
+            return value
+        return int(as_float) if as_float.is_integer() and "." not in value and "e" not in value.lower() else as_float
+    if isinstance(value, dict):
+        return {k: coerce_scalar(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [coerce_scalar(v) for v in value]
+    return value
+
+
+def parse_python_dict(text: str, name: str) -> dict:
+    """Parse a zoo-style ``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"`` or
+    ``"{'norm_obs': True}"`` string without ``eval``: only literals, ``dict(...)``
+    calls and the activation names of :data:`ACTIVATIONS` are accepted."""
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError:
+        raise ConfigError(f"{name} must be a mapping or a string like \"dict(net_arch=[64, 64])\", got {text!r}") from None
+
+    def convert(node):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+            return {kw.arg: convert(kw.value) for kw in node.keywords}
+        if isinstance(node, ast.Dict):
+            return {convert(k): convert(v) for k, v in zip(node.keys, node.values)}
+        if isinstance(node, (ast.List, ast.Tuple)):
+            return [convert(e) for e in node.elts]
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name):
+            dotted = f"{node.value.id}.{node.attr}"
+            if dotted in ACTIVATIONS:
+                return dotted
+        if isinstance(node, ast.Constant):
+            return node.value
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub) and isinstance(node.operand, ast.Constant):
+            return -node.operand.value
+        raise ConfigError(f"{name}: unsupported expression {ast.unparse(node)!r} (use literals, dict(...), "
+                          f"or one of {sorted(ACTIVATIONS)})")
+
+    value = convert(tree.body)
+    if not isinstance(value, dict):
+        raise ConfigError(f"{name} must describe a mapping, got {text!r}")
+    return value
+
+
+def read_yaml(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"config file {path} is not valid YAML: {first}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path} must hold a mapping, got {type(data).__name__}")
+    return data
+
+
+def hyperparams_for(env_id: str, algo: str, path=None) -> dict:
+    """The YAML entry for ``env_id`` (zoo style: top-level keys are env ids)."""
+    path = default_config_path(algo) if path is None else Path(path)
+    data = read_yaml(path)
+    if env_id not in data:
+        known = sorted(k for k in data if not str(k).startswith("."))
+        raise ConfigError(f"no {algo} hyperparameters for env {env_id!r} in {path}; available env ids: {known}")
+    entry = data[env_id]
+    if not isinstance(entry, dict):
+        raise ConfigError(f"entry {env_id!r} of {path} must be a mapping")
+    return coerce_scalar(copy.deepcopy(entry))
+
+
+def parse_override(text: str) -> tuple[list[str], object]:
+    """``key=value`` or ``env_kwargs.max_torque=2.0``; the value is read as YAML."""
+    if "=" not in text:
+        raise ConfigError(f"--set expects key=value, got {text!r}")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    if not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"--set expects key=value with a non-empty key, got {text!r}")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    return key.split("."), coerce_scalar(value)
+
+
+def apply_overrides(config: dict, overrides) -> dict:
+    """Apply ``--set`` overrides in order; dotted keys reach into mapping values
+    (``policy_kwargs`` given as a zoo string is parsed into a mapping first)."""
+    config = copy.deepcopy(config)
+    for text in overrides or ():
+        path, value = parse_override(text)
+        target = config
+        for depth, part in enumerate(path[:-1]):
+            child = target.get(part, {})
+            if isinstance(child, str):
+                child = parse_python_dict(child, ".".join(path[: depth + 1]))
+            if not isinstance(child, dict):
+                raise ConfigError(f"--set {text!r}: {'.'.join(path[: depth + 1])} is not a mapping")
+            target[part] = child
+            target = child
+        target[path[-1]] = value
+    return config
+
+
+def normalize_options(value, gamma) -> dict | None:
+    """VecNormalize kwargs for the zoo's ``normalize`` key (None: no normalization)."""
+    if isinstance(value, str):
+        value = parse_python_dict(value, "normalize")
+    if value is False or value is None:
+        return None
+    if value is True:
+        options = {"norm_obs": True, "norm_reward": True}
+    elif isinstance(value, dict):
+        unknown = sorted(set(value) - set(NORMALIZE_KEYS))
+        if unknown:
+            raise ConfigError(f"unknown normalize key(s) {unknown}; valid: {list(NORMALIZE_KEYS)}")
+        options = dict(value)
+    else:
+        raise ConfigError(f"normalize must be true, false or a mapping of {list(NORMALIZE_KEYS)}, got {value!r}")
+    if gamma is not None:
+        options.setdefault("gamma", gamma)
+    return options
+
+
+def policy_kwargs_dict(value) -> dict:
+    if value is None:
+        return {}
+    if isinstance(value, str):
+        return parse_python_dict(value, "policy_kwargs")
+    if not isinstance(value, dict):
+        raise ConfigError(f"policy_kwargs must be a mapping or a zoo-style string, got {value!r}")
+    return dict(value)
+
+
+def _check_positive_int(config, key):
+    value = config[key]
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ConfigError(f"{key} must be a positive integer, got {config[key]!r}")
+    config[key] = int(value)
+
+
+def validate(config: dict) -> dict:
+    """Check keys and the meta values; return a normalized copy."""
+    config = copy.deepcopy(config)
+    algo = check_algo(config.get("algo"))
+    if not isinstance(config.get("env_id"), str) or not config["env_id"]:
+        raise ConfigError(f"env_id must be a gymnasium env id string, got {config.get('env_id')!r}")
+    unknown = sorted(set(config) - set(valid_keys(algo)))
+    if unknown:
+        raise ConfigError(f"unknown config key(s) {unknown} for {algo}; valid keys: {valid_keys(algo)}")
+    for key, default in META_DEFAULTS.items():
+        config.setdefault(key, copy.deepcopy(default))
+    seed = config.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    config["seed"] = int(seed)
+    for key in ("n_timesteps", "n_envs", "eval_freq", "n_eval_episodes", "checkpoint_freq", "torch_threads"):
+        _check_positive_int(config, key)
+    if config["vec_env"] not in VEC_ENV_KINDS:
+        raise ConfigError(f"vec_env must be one of {list(VEC_ENV_KINDS)}, got {config['vec_env']!r}")
+    if not isinstance(config["env_kwargs"], dict):
+        raise ConfigError(f"env_kwargs must be a mapping, got {config['env_kwargs']!r}")
+    policy_kwargs_dict(config["policy_kwargs"])  # parse once to report errors early
+    normalize_options(config["normalize"], None)
+    for key in SCHEDULE_KEYS:
+        value = config.get(key)
+        if isinstance(value, str):
+            parse_schedule(key, value)
+    return config
+
+
+def parse_schedule(key: str, value):
+    """Zoo schedules: ``lin_3e-4`` is a linear decay from 3e-4 to 0."""
+    if isinstance(value, str):
+        if not value.startswith("lin_"):
+            raise ConfigError(f"{key} must be a number or 'lin_<number>', got {value!r}")
+        try:
+            start = float(value[4:])
+        except ValueError:
+            raise ConfigError(f"{key} must be a number or 'lin_<number>', got {value!r}") from None
+        return lambda progress_remaining: progress_remaining * start
+    return value
+
+
+def build_config(algo: str, env_id: str, config_path=None, overrides=(), seed=None,
+                 n_timesteps=None, n_envs=None) -> dict:
+    """Merge once: YAML entry -> ``--set`` overrides -> explicit flags; validate."""
+    check_algo(algo)
+    config = hyperparams_for(env_id, algo, config_path)
+    config = apply_overrides(config, overrides)
+    for key in RUN_KEYS:
+        if key in config and key != "seed":
+            raise ConfigError(f"{key} cannot be set in a config entry; use --{key.replace('_', '-')}")
+    config["algo"] = algo
+    config["env_id"] = env_id
+    if seed is not None:
+        config["seed"] = seed
+    if n_timesteps is not None:
+        config["n_timesteps"] = n_timesteps
+    if n_envs is not None:
+        config["n_envs"] = n_envs
+    return validate(config)
+
+
+def algo_kwargs(config: dict) -> dict:
+    """The algorithm constructor arguments of a validated config."""
+    allowed = set(algo_arguments(config["algo"]))
+    kwargs = {k: v for k, v in config.items() if k in allowed}
+    for key in SCHEDULE_KEYS:
+        if key in kwargs:
+            kwargs[key] = parse_schedule(key, kwargs[key])
+    return kwargs
+
+
+def torch_policy_kwargs(config: dict) -> dict:
+    """``policy_kwargs`` with activation names turned into torch classes."""
+    import torch.nn as nn
+
+    kwargs = policy_kwargs_dict(config["policy_kwargs"])
+    act = kwargs.get("activation_fn")
+    if isinstance(act, str):
+        name = ACTIVATIONS.get(act, act)
+        if not hasattr(nn, name) or name not in ACTIVATIONS.values():
+            raise ConfigError(f"policy_kwargs.activation_fn must be one of {sorted(ACTIVATIONS)}, got {act!r}")
+        kwargs["activation_fn"] = getattr(nn, name)
+    return kwargs
+
+
+def save_config(config: dict, path) -> None:
+    """Write ``config`` as YAML atomically (temp file in the same dir, then rename)."""
+    text = yaml.safe_dump(config, sort_keys=False, default_flow_style=None)
+    atomic_write_text(Path(path), text)
+
+
+def load_run_config(path) -> dict:
+    """Read and validate a run's saved ``config.yaml``."""
+    data = coerce_scalar(read_yaml(path))
+    return validate(data)

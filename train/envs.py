@@ -1,0 +1,67 @@
+"""Vectorized training/evaluation envs for SB3, built from a validated config."""
+
+from __future__ import annotations
+
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
+
+from train.config import ConfigError, normalize_options
+
+
+def make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
+    """See :func:`_make_vec_env`; a bad env id or env kwarg becomes a one-line ConfigError."""
+    import gymnasium as gym
+
+    try:
+        return _make_vec_env(config, n_envs, seed)
+    except (ValueError, TypeError, gym.error.Error) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"cannot make env {config['env_id']!r} with env_kwargs {config['env_kwargs']}: {message}") from None
+
+
+def _make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
+    """``n_envs`` copies of ``config['env_id']`` with ``env_kwargs``, episode
+    statistics recorded by VecMonitor (SB3's ``ep_rew_mean`` and EvalCallback need them).
+
+    ``vec_env: batched`` steps all copies with one call of the batched
+    dynamics (SnakeSB3VecEnv over the env's vector entry point);
+    ``dummy`` loops over single envs (SB3 DummyVecEnv), for any gymnasium id.
+    """
+    env_id = config["env_id"]
+    env_kwargs = dict(config["env_kwargs"])
+    if config["vec_env"] == "batched":
+        from agents.sb3_vec_env import SnakeSB3VecEnv
+
+        venv = SnakeSB3VecEnv(env_id, num_envs=n_envs, **env_kwargs)
+        venv.seed(seed)  # seeds the first reset
+    else:
+        import gymnasium as gym
+
+        import snake_env  # noqa: F401  (registers the ids)
+
+        def factory(rank):
+            def make():
+                env = gym.make(env_id, **env_kwargs)
+                env.reset(seed=seed + rank)
+                env.action_space.seed(seed + rank)
+                return env
+
+            return make
+
+        venv = DummyVecEnv([factory(rank) for rank in range(n_envs)])
+        venv.seed(seed)
+    return VecMonitor(venv)
+
+
+def wrap_normalize(venv: VecEnv, config: dict, training: bool) -> VecEnv:
+    """VecNormalize per the zoo's ``normalize`` key (unchanged env if off).
+
+    Evaluation envs never update statistics and report raw rewards."""
+    options = normalize_options(config["normalize"], config.get("gamma"))
+    if options is None:
+        return venv
+    if not training:
+        options = {**options, "norm_reward": False}
+    venv = VecNormalize(venv, training=training, **options)
+    return venv

@@ -1,0 +1,276 @@
+"""``snake-eval``: headless evaluation of a saved policy or of the serpenoid baseline.
+
+Examples::
+
+    snake-eval runs/Snake5-v0__ppo__s0__20260101-120000 --episodes 5 --json eval.json
+    snake-eval runs/.../checkpoints/model_200000_steps.zip --plot cm.png --video snake.gif
+    snake-eval --baseline serpenoid --env snake_env/Snake5-v0 --json serpenoid.json
+
+The env id, env kwargs and VecNormalize statistics come from the run's
+``config.yaml`` and the statistics file saved beside the model; the
+statistics are applied with ``training=False, norm_reward=False`` and never
+updated. Rendering uses ``rgb_array`` only, so no display is needed.
+Metrics per episode: return, mean forward velocity (mean of
+``info["x_velocity"]``, m/s, whole-snake CM), final distance from the
+origin (m), x displacement (m), length (steps).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+EXIT_ERROR = 2
+VIDEO_SUFFIXES = (".gif", ".mp4")
+
+
+class EvalError(ValueError):
+    """A one-line CLI error."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="snake-eval", description="Evaluate a saved snake policy headlessly.")
+    parser.add_argument("target", nargs="?", help="run directory or model .zip (omit with --baseline)")
+    parser.add_argument("--baseline", choices=["serpenoid"], help="evaluate a non-learned controller instead")
+    parser.add_argument("--env", dest="env_id", help="env id (required with --baseline; for a model it must match)")
+    parser.add_argument("--episodes", type=int, default=5, help="number of episodes (default 5)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--deterministic", dest="deterministic", action="store_true", default=True,
+                      help="use the policy's mean action (default)")
+    mode.add_argument("--stochastic", dest="deterministic", action="store_false", help="sample actions")
+    parser.add_argument("--seed", type=int, default=0, help="seed of episode k is seed + k (default 0)")
+    parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: the env's)")
+    parser.add_argument("--video", help="write the first episode as PATH.gif or PATH.mp4")
+    parser.add_argument("--plot", help="write the CM trajectories as a PNG")
+    parser.add_argument("--json", dest="json_path", help="write the metrics as JSON")
+    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default configs/serpenoid.yaml)")
+    return parser
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def make_env(env_id: str, env_kwargs: dict, render: bool):
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401
+
+    try:
+        return gym.make(env_id, render_mode="rgb_array" if render else None, **env_kwargs)
+    except (ValueError, TypeError, gym.error.Error) as exc:
+        raise EvalError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
+
+
+def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None, record_video=False):
+    """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths, frames of episode 0)."""
+    results, paths, frames = [], [], []
+    for episode in range(episodes):
+        obs, info = env.reset(seed=seed + episode)
+        reset_controller()
+        xy = [(info["x_position"], info["y_position"])]
+        x0 = info["x_position"]
+        total, speeds, steps = 0.0, [], 0
+        if record_video and episode == 0:
+            frames.append(env.render())
+        while True:
+            obs, reward, terminated, truncated, info = env.step(act(obs))
+            total += float(reward)
+            speeds.append(float(info["x_velocity"]))
+            xy.append((info["x_position"], info["y_position"]))
+            steps += 1
+            if record_video and episode == 0:
+                frames.append(env.render())
+            if terminated or truncated or (max_steps is not None and steps >= max_steps):
+                break
+        results.append({
+            "episode": episode,
+            "seed": seed + episode,
+            "return": total,
+            "forward_velocity": float(np.mean(speeds)),
+            "distance": float(info["distance_from_origin"]),
+            "x_displacement": float(info["x_position"] - x0),
+            "length": steps,
+            "sim_failure": bool(info.get("sim_failure", False)),
+        })
+        paths.append(np.asarray(xy))
+    return results, paths, frames
+
+
+def summarize(results: list[dict]) -> dict:
+    returns = np.array([r["return"] for r in results])
+    speeds = np.array([r["forward_velocity"] for r in results])
+    distances = np.array([r["distance"] for r in results])
+    return {
+        "mean_return": float(returns.mean()),
+        "std_return": float(returns.std()),
+        "mean_forward_velocity": float(speeds.mean()),
+        "std_forward_velocity": float(speeds.std()),
+        "mean_distance": float(distances.mean()),
+        "mean_length": float(np.mean([r["length"] for r in results])),
+    }
+
+
+def print_table(title: str, results: list[dict], summary: dict) -> None:
+    print(title)
+    print(f"{'episode':>7} {'seed':>6} {'return':>10} {'v_x (m/s)':>10} {'distance (m)':>12} {'steps':>6}")
+    for r in results:
+        print(f"{r['episode']:>7} {r['seed']:>6} {r['return']:>10.3f} {r['forward_velocity']:>10.4f} "
+              f"{r['distance']:>12.3f} {r['length']:>6}")
+    print(f"{'mean':>7} {'':>6} {summary['mean_return']:>10.3f} {summary['mean_forward_velocity']:>10.4f} "
+          f"{summary['mean_distance']:>12.3f} {summary['mean_length']:>6.0f}")
+    print(f"{'std':>7} {'':>6} {summary['std_return']:>10.3f} {summary['std_forward_velocity']:>10.4f}")
+
+
+def write_video(frames, path: Path, fps: float) -> None:
+    import imageio.v2 as imageio
+
+    from train.atomic import atomic_path
+
+    if not frames:
+        raise EvalError("no frames were rendered")
+    with atomic_path(path, suffix=path.suffix) as tmp:
+        if path.suffix == ".gif":
+            # every other frame keeps GIFs small; the duration keeps real time
+            imageio.mimsave(tmp, frames[::2], duration=2000.0 / fps, loop=0)
+        else:
+            try:
+                imageio.mimsave(tmp, frames, fps=fps, macro_block_size=1)
+            except (ImportError, ValueError, RuntimeError) as exc:
+                raise EvalError(f"writing {path.suffix} needs the imageio-ffmpeg package "
+                                f"(pip install imageio-ffmpeg), or use a .gif path: {_first_line(exc)}") from None
+
+
+def check_outputs(args) -> None:
+    if args.episodes < 1:
+        raise EvalError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.max_steps is not None and args.max_steps < 1:
+        raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if args.video and Path(args.video).suffix not in VIDEO_SUFFIXES:
+        raise EvalError(f"--video must end with one of {list(VIDEO_SUFFIXES)}, got {args.video!r}")
+    if args.video and Path(args.video).suffix == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            raise EvalError("writing .mp4 needs the imageio-ffmpeg package (pip install imageio-ffmpeg); "
+                            "or use a .gif path") from None
+    if args.plot and Path(args.plot).suffix != ".png":
+        raise EvalError(f"--plot must be a .png path, got {args.plot!r}")
+    if args.baseline and args.target:
+        raise EvalError("give either a run directory/model or --baseline, not both")
+    if args.baseline and not args.env_id:
+        raise EvalError("--baseline serpenoid needs --env ID")
+    if not args.baseline and not args.target:
+        raise EvalError("give a run directory or model file (or --baseline serpenoid --env ID)")
+
+
+def policy_actor(args):
+    """(env_id, env_kwargs, act(obs), reset(), description) of a saved policy."""
+    from agents.policy_loading import PolicyLoadError, load_policy, locate
+    from train.config import ConfigError, load_run_config
+
+    try:
+        files = locate(args.target)
+        config = {}
+        if files.config is not None:
+            config = load_run_config(files.config)
+    except (PolicyLoadError, ConfigError) as exc:
+        raise EvalError(str(exc)) from None
+    env_id = args.env_id or config.get("env_id")
+    if env_id is None:
+        raise EvalError(f"no config.yaml beside {files.model}; pass --env ID")
+    if args.env_id and config.get("env_id") not in (None, args.env_id):
+        raise EvalError(f"{files.model} was trained on {config['env_id']}, not {args.env_id}")
+    env_kwargs = dict(config.get("env_kwargs") or {})
+    env = make_env(env_id, env_kwargs, render=False)
+    try:
+        loaded = load_policy(files.model, env.observation_space, env.action_space, config)
+    except PolicyLoadError as exc:
+        raise EvalError(str(exc)) from None
+    finally:
+        env.close()
+
+    def act(obs):
+        return loaded.act(obs, deterministic=args.deterministic)
+
+    stats = files.vecnormalize.name if files.vecnormalize else "none"
+    title = (f"{loaded.algo.upper()} {files.model} on {env_id} "
+             f"({'deterministic' if args.deterministic else 'stochastic'}; VecNormalize stats: {stats})")
+    return env_id, env_kwargs, act, lambda: None, title, {"algo": loaded.algo, "model": str(files.model)}
+
+
+def serpenoid_actor(args):
+    from agents.search import DEFAULT_OUTPUT, env_geometry, load_params
+    from agents.serpenoid import SerpenoidController
+
+    path = args.serpenoid_config or DEFAULT_OUTPUT
+    try:
+        params, env_kwargs = load_params(args.env_id, path)
+        n_links, max_torque, dt, include_position = env_geometry(args.env_id, env_kwargs)
+    except ValueError as exc:
+        raise EvalError(_first_line(exc)) from None
+    controller = SerpenoidController(params, n_links, max_torque, dt, include_position=include_position)
+    title = f"serpenoid gait {params} on {args.env_id}"
+    return (args.env_id, env_kwargs, controller.act, controller.reset, title,
+            {"algo": "serpenoid", "params": params.to_dict()})
+
+
+def evaluate(args) -> dict:
+    check_outputs(args)
+    if args.baseline:
+        env_id, env_kwargs, act, reset, title, meta = serpenoid_actor(args)
+    else:
+        env_id, env_kwargs, act, reset, title, meta = policy_actor(args)
+    if not args.deterministic:
+        from stable_baselines3.common.utils import set_random_seed
+
+        set_random_seed(args.seed)  # torch sampling of stochastic actions, reproducible
+    env = make_env(env_id, env_kwargs, render=bool(args.video))
+    try:
+        results, paths, frames = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps,
+                                              record_video=bool(args.video))
+        fps = env.metadata.get("render_fps", 25)
+    finally:
+        env.close()
+    summary = summarize(results)
+    print_table(title, results, summary)
+    report = {"env_id": env_id, "env_kwargs": env_kwargs, **meta, "deterministic": args.deterministic,
+              "seed": args.seed, "n_episodes": args.episodes, **summary, "episodes": results}
+    if args.json_path:
+        from train.atomic import atomic_write_text
+
+        atomic_write_text(Path(args.json_path), json.dumps(report, indent=2, allow_nan=False) + "\n")
+        print(f"metrics written to {args.json_path}")
+    if args.plot:
+        from train.plots import plot_trajectories
+
+        plot_trajectories(paths, Path(args.plot), f"CM trajectories: {meta['algo']} on {env_id}")
+        print(f"trajectories plotted to {args.plot}")
+    if args.video:
+        write_video(frames, Path(args.video), fps)
+        print(f"video written to {args.video}")
+    if not all(math.isfinite(v) for v in summary.values()):
+        raise EvalError("evaluation produced non-finite metrics")
+    return report
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        evaluate(args)
+    except EvalError as exc:
+        parser.exit(EXIT_ERROR, f"snake-eval: error: {exc}\n")
+    except KeyboardInterrupt:
+        parser.exit(130, "snake-eval: interrupted\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

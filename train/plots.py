@@ -1,0 +1,83 @@
+"""Learning-curve and trajectory figures (matplotlib, Agg: no display needed)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from train.atomic import atomic_path  # noqa: E402
+
+STEP_KEY = "time/total_timesteps"
+CURVES = (("rollout/ep_rew_mean", "training episodes (mean return)"),
+          ("eval/mean_reward", "deterministic evaluation (mean return)"))
+
+
+def progress_files(log_dir) -> list[Path]:
+    """CSV logs of every training segment, oldest first (``--resume`` adds one)."""
+    log_dir = Path(log_dir)
+    return sorted(log_dir.glob("segment_*/progress.csv"), key=lambda p: int(p.parent.name.split("_")[1]))
+
+
+def read_curves(log_dir) -> dict[str, list[tuple[int, float]]]:
+    curves = {key: [] for key, _ in CURVES}
+    for path in progress_files(log_dir):
+        with open(path, newline="") as handle:
+            for row in csv.DictReader(handle):
+                step = row.get(STEP_KEY)
+                if not step:
+                    continue
+                for key in curves:
+                    value = row.get(key)
+                    if value not in (None, ""):
+                        curves[key].append((int(float(step)), float(value)))
+    return curves
+
+
+def save_figure(fig, path) -> None:
+    path = Path(path)
+    with atomic_path(path, suffix=path.suffix or ".png") as tmp:
+        fig.savefig(tmp, dpi=110, format=(path.suffix.lstrip(".") or "png"))
+    plt.close(fig)
+
+
+def plot_learning_curve(log_dir, path, title: str) -> bool:
+    """Plot episode return against environment steps; False if nothing was logged."""
+    curves = read_curves(log_dir)
+    if not any(curves.values()):
+        return False
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for key, label in CURVES:
+        points = sorted(curves[key])
+        if points:
+            steps, values = zip(*points)
+            ax.plot(steps, values, marker="o" if key.startswith("eval") else None, markersize=3, label=label)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("episode return (1000 steps)")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    save_figure(fig, path)
+    return True
+
+
+def plot_trajectories(trajectories, path, title: str) -> None:
+    """CM paths (x, y in m), one line per episode, equal axes."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    for index, xy in enumerate(trajectories):
+        ax.plot(xy[:, 0], xy[:, 1], label=f"episode {index}")
+        ax.plot(xy[0, 0], xy[0, 1], "k.", markersize=6)
+    ax.set_xlabel("x of the centre of mass (m)")
+    ax.set_ylabel("y of the centre of mass (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    if len(trajectories) <= 10:
+        ax.legend(fontsize="small")
+    fig.tight_layout()
+    save_figure(fig, path)

@@ -1,0 +1,200 @@
+"""``snake-train``: train a PPO or SAC policy on a snake env (SB3), RL Zoo style.
+
+Examples::
+
+    snake-train --algo ppo --env snake_env/Snake5-v0
+    snake-train --algo sac --env snake_env/Snake3-v0 --set learning_rate=1e-3 --total-timesteps 50000
+    snake-train --resume runs/Snake5-v0__ppo__s0__20260101-120000
+
+The run directory holds ``config.yaml`` (the one merged config), ``model.zip``
+and ``vecnormalize.pkl``, ``checkpoints/`` (each model with its statistics),
+``best_model/`` (EvalCallback), ``logs/segment_<k>/`` (CSV + TensorBoard; a
+resumed run adds a segment) and ``learning_curve.png``. Ctrl-C saves the
+model and statistics (and a checkpoint) before exiting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from train import config as cfg
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="snake-train",
+        description="Train a PPO/SAC locomotion policy on a snake env (Stable-Baselines3, RL Zoo conventions).",
+    )
+    parser.add_argument("--algo", help=f"algorithm, one of {list(cfg.ALGOS)}")
+    parser.add_argument("--env", dest="env_id", help="gymnasium env id, e.g. snake_env/Snake5-v0")
+    parser.add_argument("--config", help="hyperparameter YAML keyed by env id (default configs/<algo>.yaml)")
+    parser.add_argument("--total-timesteps", type=int, help="environment steps to train (overrides n_timesteps)")
+    parser.add_argument("--seed", type=int, help="random seed (default 0)")
+    parser.add_argument("--n-envs", type=int, help="number of parallel envs (overrides n_envs)")
+    parser.add_argument("--run-dir", help="run directory (default runs/<env>__<algo>__s<seed>__<time>/)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config key; dotted keys reach into env_kwargs/policy_kwargs; repeatable")
+    parser.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
+    parser.add_argument("--no-progress-bar", action="store_true", help="disable the progress bar")
+    parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (0, 1 or 2)")
+    return parser
+
+
+def default_run_dir(config: dict) -> Path:
+    env_name = config["env_id"].split("/")[-1].replace(":", "_")
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{env_name}__{config['algo']}__s{config['seed']}__{stamp}"
+
+
+def prepare(args) -> tuple[dict, Path, bool]:
+    """(config, run_dir, resuming) from the CLI, merging the config once."""
+    if args.resume:
+        run_dir = Path(args.resume)
+        conflicting = [flag for flag, value in (("--algo", args.algo), ("--env", args.env_id),
+                                                 ("--config", args.config), ("--seed", args.seed),
+                                                 ("--n-envs", args.n_envs), ("--run-dir", args.run_dir),
+                                                 ("--set", args.overrides)) if value]
+        if conflicting:
+            raise cfg.ConfigError(f"--resume continues a run with its saved config.yaml; do not combine it with "
+                                  f"{', '.join(conflicting)} (only --total-timesteps may change)")
+        if not (run_dir / "config.yaml").is_file():
+            raise cfg.ConfigError(f"--resume: {run_dir / 'config.yaml'} not found")
+        config = cfg.load_run_config(run_dir / "config.yaml")
+        if args.total_timesteps is not None:
+            config["n_timesteps"] = args.total_timesteps
+            config = cfg.validate(config)
+        return config, run_dir, True
+    if not args.algo or not args.env_id:
+        raise cfg.ConfigError(f"--algo {{{','.join(cfg.ALGOS)}}} and --env ID are required (or --resume RUN_DIR)")
+    cfg.check_algo(args.algo)
+    config = cfg.build_config(args.algo, args.env_id, args.config, args.overrides, seed=args.seed,
+                              n_timesteps=args.total_timesteps, n_envs=args.n_envs)
+    run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(config)
+    if (run_dir / "model.zip").exists() or (run_dir / "checkpoints").exists():
+        raise cfg.ConfigError(f"run directory {run_dir} already holds a run; use --resume {run_dir} or another --run-dir")
+    return config, run_dir, False
+
+
+def build_model(config: dict, venv, log_dir: Path, verbose: int):
+    algo_cls = cfg.algo_class(config["algo"])
+    try:
+        return algo_cls(config["policy"], venv, seed=config["seed"], device="cpu", verbose=verbose,
+                        policy_kwargs=cfg.torch_policy_kwargs(config), **cfg.algo_kwargs(config))
+    except (TypeError, ValueError, AssertionError) as exc:
+        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise cfg.ConfigError(f"invalid {config['algo']} hyperparameters: {message}") from None
+
+
+def next_segment(log_dir: Path) -> Path:
+    existing = [int(p.name.split("_")[1]) for p in log_dir.glob("segment_*") if p.name.split("_")[1].isdigit()]
+    return log_dir / f"segment_{max(existing, default=-1) + 1}"
+
+
+def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, verbose: int = 0) -> int:
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList, EvalCallback
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from train import callbacks as cb
+    from train.atomic import atomic_path
+    from train.envs import make_vec_env, wrap_normalize
+    from train.plots import plot_learning_curve
+
+    torch.set_num_threads(config["torch_threads"])
+    run_dir.mkdir(parents=True, exist_ok=True)
+    checkpoint_dir = run_dir / "checkpoints"
+    best_dir = run_dir / "best_model"
+    log_dir = run_dir / "logs"
+    n_envs = config["n_envs"]
+
+    start = None
+    if resuming:
+        start = cb.latest_checkpoint(checkpoint_dir)
+        if start is None:
+            raise cfg.ConfigError(f"--resume: no checkpoint (checkpoints/model_<steps>_steps.zip) in {run_dir}")
+    env_seed = config["seed"] + (start[0] if start else 0)
+    venv = make_vec_env(config, n_envs, env_seed)
+    eval_env = make_vec_env(config, min(config["n_eval_episodes"], 8), config["seed"] + 10_000)
+    eval_env = wrap_normalize(eval_env, config, training=False)
+
+    if start is None:
+        cfg.save_config(config, run_dir / "config.yaml")
+        venv = wrap_normalize(venv, config, training=True)
+        model = build_model(config, venv, log_dir, verbose)
+    else:
+        steps, model_path = start
+        stats_path = cb.checkpoint_paths(checkpoint_dir, steps)["vecnormalize"]
+        if cfg.normalize_options(config["normalize"], config.get("gamma")) is not None:
+            venv = VecNormalize.load(str(stats_path), venv)
+            venv.training = True
+        algo_cls = cfg.algo_class(config["algo"])
+        model = algo_cls.load(model_path, env=venv, device="cpu", verbose=verbose)
+        replay = checkpoint_dir / "replay_buffer.pkl"
+        if hasattr(model, "load_replay_buffer") and replay.is_file():
+            model.load_replay_buffer(replay)
+        print(f"resuming {run_dir} from {model_path.name} ({model.num_timesteps} steps)")
+
+    segment = next_segment(log_dir)
+    model.set_logger(configure(str(segment), ["csv", "tensorboard"]))
+    eval_freq = max(1, config["eval_freq"] // n_envs)
+    callbacks = CallbackList([
+        cb.CheckpointWithStats(config["checkpoint_freq"], checkpoint_dir, verbose=verbose),
+        EvalCallback(eval_env, n_eval_episodes=config["n_eval_episodes"], eval_freq=eval_freq,
+                     deterministic=True, log_path=str(run_dir / "eval"), best_model_save_path=None,
+                     callback_on_new_best=cb.SaveBestWithStats(best_dir), verbose=verbose),
+    ])
+    remaining = config["n_timesteps"] - model.num_timesteps
+    interrupted = False
+    started = time.perf_counter()
+    try:
+        if remaining > 0:
+            model.learn(total_timesteps=remaining, callback=callbacks, progress_bar=progress_bar,
+                        reset_num_timesteps=start is None, tb_log_name="tb")
+    except KeyboardInterrupt:
+        interrupted = True
+    wall = time.perf_counter() - started
+    # the final model and its statistics; a checkpoint too, so --resume starts here
+    cb.save_checkpoint(model, checkpoint_dir)
+    cb.save_snapshot(model, run_dir / "model.zip", run_dir / "vecnormalize.pkl")
+    if cb.vecnormalize_of(model) is None:
+        (run_dir / "vecnormalize.pkl").unlink(missing_ok=True)
+    title = f"{config['algo'].upper()} on {config['env_id']} (seed {config['seed']})"
+    plot_learning_curve(log_dir, run_dir / "learning_curve.png", title)
+    with atomic_path(run_dir / "wall_time.txt") as tmp:
+        previous = 0.0
+        if (run_dir / "wall_time.txt").is_file():
+            try:
+                previous = float((run_dir / "wall_time.txt").read_text().split()[0])
+            except (ValueError, IndexError):
+                previous = 0.0
+        tmp.write_text(f"{previous + wall:.1f} s of training wall time, {model.num_timesteps} timesteps\n")
+    venv.close()
+    eval_env.close()
+    state = "interrupted" if interrupted else "finished"
+    print(f"{state} after {model.num_timesteps} timesteps ({wall:.0f} s); model saved to {run_dir / 'model.zip'}")
+    return EXIT_INTERRUPTED if interrupted else 0
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        config, run_dir, resuming = prepare(args)
+        return run(config, run_dir, resuming, progress_bar=not args.no_progress_bar, verbose=args.verbose)
+    except cfg.ConfigError as exc:
+        parser.exit(EXIT_USAGE, f"snake-train: error: {exc}\n")
+    except KeyboardInterrupt:
+        # Ctrl-C before training started: nothing to save
+        parser.exit(EXIT_INTERRUPTED, "snake-train: interrupted before training started\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
