@@ -200,32 +200,43 @@ def _ppo_run(env, total_timesteps: int, ppo_kwargs: dict) -> float:
 
 
 def ppo_speeds(snake_links: int, snake_num_envs: int, iterations: int, rounds: int, ppo_kwargs: dict,
-               with_swimmer: bool) -> dict:
+               with_swimmer: bool, torch_threads: int = 1) -> dict:
     """SB3 PPO training fps on the batched snake env (SnakeSB3VecEnv) and on a
     single Swimmer-v5 env, same PPO settings, interleaved round by round.
 
     Each run is ``iterations`` full PPO iterations (rollout of n_steps per env
     plus n_epochs of updates), so fps counts training time as SB3 users see it.
+    Torch runs on ``torch_threads`` threads for both (1 by default: for SB3's
+    small MLPs on a 2-core machine, torch's intra-op threads only contend with
+    each other and with the env; with 2 threads under load we measured PPO
+    50x slower).
     """
     import gymnasium as gym
     import torch
 
     from agents.sb3_vec_env import SnakeSB3VecEnv
 
-    n_steps = ppo_kwargs.get("n_steps", 2048)
-    snake_env = SnakeSB3VecEnv(snake_id(snake_links), num_envs=snake_num_envs)
-    samples = {"snake": [], "swimmer": []}
-    for _ in range(rounds):
-        samples["snake"].append(_ppo_run(snake_env, iterations * n_steps * snake_num_envs, ppo_kwargs))
-        if with_swimmer:
-            swimmer = gym.make(SWIMMER_ID)
-            samples["swimmer"].append(_ppo_run(swimmer, iterations * n_steps, ppo_kwargs))
-            swimmer.close()
-    snake_env.close()
+    previous_threads = torch.get_num_threads()
+    torch.set_num_threads(torch_threads)
+    try:
+        n_steps = ppo_kwargs.get("n_steps", 2048)
+        snake_env = SnakeSB3VecEnv(snake_id(snake_links), num_envs=snake_num_envs)
+        snake_env.reset()  # warm-up: load the compiled kernels before any timing
+        snake_env.step(np.zeros((snake_num_envs,) + snake_env.action_space.shape, snake_env.action_space.dtype))
+        samples = {"snake": [], "swimmer": []}
+        for _ in range(rounds):
+            samples["snake"].append(_ppo_run(snake_env, iterations * n_steps * snake_num_envs, ppo_kwargs))
+            if with_swimmer:
+                swimmer = gym.make(SWIMMER_ID)
+                samples["swimmer"].append(_ppo_run(swimmer, iterations * n_steps, ppo_kwargs))
+                swimmer.close()
+        snake_env.close()
+    finally:
+        torch.set_num_threads(previous_threads)
     out = {
         "snake": {"env": snake_id(snake_links), "num_envs": snake_num_envs, "fps": max(samples["snake"]),
                   "samples": samples["snake"]},
-        "ppo_kwargs": ppo_kwargs, "iterations": iterations, "torch_threads": torch.get_num_threads(),
+        "ppo_kwargs": ppo_kwargs, "iterations": iterations, "torch_threads": torch_threads,
     }
     if with_swimmer:
         out["swimmer"] = {"env": SWIMMER_ID, "num_envs": 1, "fps": max(samples["swimmer"]), "samples": samples["swimmer"]}
