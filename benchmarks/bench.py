@@ -151,6 +151,7 @@ def main(argv=None) -> int:
         results.update(run_sections(config, args.sections, log=lambda *a, **k: print(*a, file=sys.stderr, **k)))
         results["duration_s"] = time.time() - started
         results["plot"] = args.plot
+        results["json"] = args.json
         if args.quick:
             results["notes"].append("--quick run: tiny sizes, numbers are not meaningful")
     results["targets"] = bench_report.evaluate_targets(results)
