@@ -25,6 +25,8 @@ def test_quick_run_writes_every_file(quick_run):
         if name.endswith(".png"):
             assert (quick_run / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not [p for p in os.listdir(quick_run) if p.startswith(".tmp-")]
+    # atomic writes keep the permissions a plain open() would give, not mkstemp's 0o600
+    assert all((quick_run / name).stat().st_mode & 0o777 == reproduce._file_mode() for name in reproduce.OUTPUT_FILES)
 
 
 def test_report_answers_the_four_claims(quick_run):
