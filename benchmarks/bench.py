@@ -1,7 +1,7 @@
 """``snake-bench``: speed of snake_env side by side with MuJoCo Swimmer-v5.
 
     snake-bench [--quick] [--json PATH] [--plot PATH] [--markdown PATH]
-                [--sections LIST] [--from-json PATH]
+                [--sections LIST] [--from-json PATH] [--note TEXT]
 
 Sections (issue 6): single-env steps/s (Snake3, Snake5, Snake30 and
 Swimmer-v5), vector env env-steps/s vs number of envs, udot time vs n for every
@@ -10,6 +10,10 @@ of a 4096-env Snake30 vector env and fresh-process start-up time. Prints a
 table and the issue's targets (met / not met), writes JSON, a scaling plot and
 ``docs/benchmarks.md``. ``--quick`` runs every section at tiny sizes (a smoke
 test, numbers meaningless). ``--from-json`` re-renders a saved run.
+
+The documented run (about 2 minutes on 2 cores; run it on a quiet machine)::
+
+    snake-bench --json docs/benchmarks.json --plot docs/images/bench_scaling.png --markdown docs/benchmarks.md
 """
 
 from __future__ import annotations
@@ -70,6 +74,8 @@ def parse_args(argv):
     parser.add_argument("--sections", default=",".join(SECTIONS),
                         help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)")
     parser.add_argument("--from-json", metavar="PATH", help="render a saved JSON instead of measuring")
+    parser.add_argument("--note", action="append", default=[], metavar="TEXT",
+                        help="add a note to the results (e.g. the run's conditions); repeatable; with --from-json it is saved into that JSON too")
     args = parser.parse_args(argv)
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     bad = [s for s in sections if s not in SECTIONS]
@@ -141,6 +147,7 @@ def main(argv=None) -> int:
             return 2
         if args.plot is None and results.get("plot"):
             args.plot = results["plot"]
+        results["json"] = args.from_json  # the page's regenerate command names this file
     else:
         config = QUICK if args.quick else FULL
         started = time.time()
@@ -154,9 +161,12 @@ def main(argv=None) -> int:
         results["json"] = args.json
         if args.quick:
             results["notes"].append("--quick run: tiny sizes, numbers are not meaningful")
+    results.setdefault("notes", []).extend(note for note in args.note if note not in results["notes"])
     results["targets"] = bench_report.evaluate_targets(results)
     print(bench_report.format_text(results))
     write_outputs(results, args)
+    if args.from_json and args.note:  # keep the notes with the saved run
+        bench_report.write_atomic(args.from_json, json.dumps(results, indent=2) + "\n")
     return 0
 
 

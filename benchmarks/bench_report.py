@@ -214,6 +214,12 @@ def format_markdown(results: dict, plot_path: str | None = None, markdown_path: 
     out.append(f"snake-bench --from-json {json_path} --markdown {markdown_path or 'docs/benchmarks.md'}{plot_arg}")
     out.append("```")
     out.append("")
+    out.append("and measure afresh (about 2 minutes on 2 cores; a quiet machine gives the meaningful numbers) with")
+    out.append("")
+    out.append("```")
+    out.append("snake-bench --json docs/benchmarks.json --plot docs/images/bench_scaling.png --markdown docs/benchmarks.md")
+    out.append("```")
+    out.append("")
     out.append("## Machine")
     out.append("")
     out.append(f"- CPU: {machine.get('cpu')}, {machine.get('logical_cores')} logical cores, {machine.get('ram_gb')} GB RAM")
@@ -314,9 +320,10 @@ def write_plot(results: dict, path: str) -> None:
         sizes = [int(k) for k in vector]
         ax2.loglog(sizes, [vector[str(k)]["env_steps_per_s"] for k in sizes], "o-",
                    label=f"Snake{_get(results, 'config', 'vector_n_links')} vector env")
+    styles = iter([("0.35", "--"), ("0.55", "-."), ("0.7", ":")])
     for env_id, data in (_get(results, "single_env") or {}).items():
-        ax2.axhline(data["steps_per_s"], ls="--", lw=1, color="k" if "Swimmer" in env_id else "0.6",
-                    label=f"{env_id} single env")
+        color, style = ("k", "--") if "Swimmer" in env_id else next(styles, ("0.8", ":"))
+        ax2.axhline(data["steps_per_s"], ls=style, lw=1.2, color=color, label=f"{env_id} single env")
     ax2.set_xlabel("number of envs")
     ax2.set_ylabel("env-steps/s")
     ax2.set_title("throughput")

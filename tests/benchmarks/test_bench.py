@@ -138,3 +138,13 @@ def test_bad_arguments_are_rejected(argv, capsys):
 def test_unreadable_json_is_a_clean_error(tmp_path, capsys):
     assert bench.main(["--from-json", str(tmp_path / "missing.json")]) == 2
     assert "--from-json" in capsys.readouterr().err
+
+
+def test_note_is_kept_in_json_and_page(quick_run, tmp_path):
+    paths, _ = quick_run
+    saved = tmp_path / "copy.json"
+    saved.write_text(paths["json"].read_text())
+    page = tmp_path / "page.md"
+    assert bench.main(["--from-json", str(saved), "--markdown", str(page), "--note", "measured under load 5"]) == 0
+    assert "- measured under load 5" in page.read_text()
+    assert "measured under load 5" in json.loads(saved.read_text())["notes"]
