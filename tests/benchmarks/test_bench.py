@@ -148,3 +148,16 @@ def test_note_is_kept_in_json_and_page(quick_run, tmp_path):
     assert bench.main(["--from-json", str(saved), "--markdown", str(page), "--note", "measured under load 5"]) == 0
     assert "- measured under load 5" in page.read_text()
     assert "measured under load 5" in json.loads(saved.read_text())["notes"]
+
+
+def test_without_mujoco_swimmer_is_reported_not_measured(monkeypatch):
+    from benchmarks import bench_sections
+
+    monkeypatch.setattr(bench_sections, "mujoco_available", lambda: (False, "ModuleNotFoundError: No module named 'mujoco'"))
+    results = bench.run_sections(bench.QUICK, ["single"], log=lambda *a, **k: None)
+    assert results["errors"] == {}
+    assert "Swimmer-v5" not in results["single_env"]
+    assert set(results["single_env"]) == set(SNAKE_IDS)
+    assert any("No module named 'mujoco'" in note for note in results["notes"])
+    status = {row["key"]: row["status"] for row in bench_report.evaluate_targets(results)}
+    assert status["snake3_vs_swimmer"] == "not measured"
