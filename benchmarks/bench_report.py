@@ -176,7 +176,8 @@ def table_rows(results: dict) -> list[tuple[str, str, str]]:
     if startup:
         rows.append(("startup", f"{startup['env']}, fresh process, warm cache",
                      f"{_fmt(startup['import_and_first_step_s'])} s to first step "
-                     f"(process wall {_fmt(startup['process_wall_s'])} s; cold {_fmt(startup['first_run']['import_and_first_step_s'])} s)"))
+                     f"(process wall {_fmt(startup['process_wall_s'])} s; first run, filling any missing numba cache: "
+                     f"{_fmt(startup['first_run']['import_and_first_step_s'])} s)"))
     return rows
 
 
