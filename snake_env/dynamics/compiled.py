@@ -186,6 +186,14 @@ def rk4_step_batch(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, 
                                      dt, n_substeps, workspace)
 
 
+@njit(cache=True, nogil=True)
+def derivatives_batch_serial(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, power):
+    """:func:`derivatives_batch` on one thread: for small batches (e.g. one
+    simulation), where starting threads at every RK4 stage costs more than the work."""
+    for b in range(q.shape[0]):
+        power[b] = derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq[b], du[b])
+
+
 @njit(cache=True, parallel=True)
 def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, power):
     """Batched :func:`derivatives` without joint limits (the paper's model)."""

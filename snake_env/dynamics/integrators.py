@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .forces import generalized_power
+from .kane import PARALLEL_BATCH
 from .validation import state_array
 
 
@@ -142,6 +143,7 @@ def _compiled_derivatives(model, batch):
 
     m, h, inertia, c_joint, c_wheel = model.parameters(np.float64)
     size = int(np.prod(batch)) if batch else 1
+    kernel = compiled.derivatives_batch if size >= PARALLEL_BATCH else compiled.derivatives_batch_serial
 
     def deriv(q, u, T):
         qf = np.ascontiguousarray(q.reshape(size, -1))
@@ -150,7 +152,7 @@ def _compiled_derivatives(model, batch):
         dq = np.empty_like(qf)
         du = np.empty_like(uf)
         power = np.empty(size)
-        compiled.derivatives_batch(m, h, inertia, c_joint, c_wheel, qf, uf, Tf, dq, du, power)
+        kernel(m, h, inertia, c_joint, c_wheel, qf, uf, Tf, dq, du, power)
         return dq.reshape(q.shape), du.reshape(u.shape), power.reshape(batch)
 
     return deriv
