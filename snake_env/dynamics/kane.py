@@ -64,8 +64,10 @@ def solve_2x2(M00, M01, M11, r0, r1):
     return np.stack([(M11 * r0 - M01 * r1) / det, (M00 * r1 - M01 * r0) / det], axis=-1)
 
 
-# Batches at least this large go to the threaded kernel; below it, thread
-# start-up costs more than it saves (measured with snake-bench, 2 cores).
+# Batches at least this large go to the threaded kernel. Waking threads costs
+# more than small batches take: on the shared 2-core machine, the env's RK4 step
+# (16 udot evaluations per snake) was no faster threaded than serial up to
+# ~1000 snakes, so a bare udot gets a higher threshold.
 PARALLEL_BATCH = 4096
 
 
