@@ -83,8 +83,11 @@ def valid_keys(algo: str) -> list[str]:
 
 
 def default_config_path(algo: str) -> Path:
-    """``configs/<algo>.yaml`` of the repository (or of the installed package data)."""
-    return Path(__file__).resolve().parent.parent / "configs" / f"{check_algo(algo)}.yaml"
+    """``configs/<algo>.yaml`` of the source checkout, else of the working directory
+    (a non-editable install does not ship ``configs/``)."""
+    name = f"{check_algo(algo)}.yaml"
+    beside_package = Path(__file__).resolve().parent.parent / "configs" / name
+    return beside_package if beside_package.is_file() else Path.cwd() / "configs" / name
 
 
 def coerce_scalar(value):

@@ -97,6 +97,22 @@ def next_segment(log_dir: Path) -> Path:
     return log_dir / f"segment_{max(existing, default=-1) + 1}"
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def install_interrupt_handlers() -> None:
+    """Ctrl-C (SIGINT) and SIGTERM both end training through KeyboardInterrupt,
+    which saves the model. SIGINT is set explicitly because a process started
+    in the background of a non-interactive shell inherits it ignored."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, _interrupt)
+
+
 def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, verbose: int = 0) -> int:
     import torch
     from stable_baselines3.common.callbacks import CallbackList, EvalCallback
@@ -108,6 +124,7 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, 
     from train.envs import make_vec_env, wrap_normalize
     from train.plots import plot_learning_curve
 
+    install_interrupt_handlers()
     torch.set_num_threads(config["torch_threads"])
     run_dir.mkdir(parents=True, exist_ok=True)
     checkpoint_dir = run_dir / "checkpoints"

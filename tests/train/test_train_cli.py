@@ -69,10 +69,13 @@ def test_resume_continues_from_the_newest_checkpoint(tmp_path, algo, capsys):
 
 
 def test_sigint_saves_model_and_statistics(tmp_path):
+    """Even when started with SIGINT ignored (a background job of a
+    non-interactive shell), Ctrl-C saves the model and exits with 130."""
     run_dir = tmp_path / "interrupted"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     process = subprocess.Popen([sys.executable, "-m", "train", *train_args("ppo", run_dir, 10_000_000)],
-                               cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         deadline = time.monotonic() + 120
         # wait until training is under way (the first checkpoint exists)

@@ -1,0 +1,124 @@
+"""Evaluate a campaign of runs against the serpenoid baseline; print a markdown table.
+
+    python -m train.results_table runs/results --episodes 10 --images docs/images
+
+Expects run directories ``<root>/<Env>__<algo>__s<seed>/`` made by snake-train.
+Each final model is evaluated with snake-eval (deterministic; and stochastic
+and the EvalCallback's best model as extra columns), each env's serpenoid
+gait with ``snake-eval --baseline serpenoid`` on the same episode seeds.
+Results are cached as ``eval_*.json`` in every run directory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from train.evaluate import main as evaluate_main
+
+RUN_RE = re.compile(r"^(?P<env>[^_]+)__(?P<algo>ppo|sac)__s(?P<seed>\d+)$")
+
+
+def evaluate_cached(json_path: Path, argv: list[str]) -> dict:
+    if not json_path.is_file():
+        code = evaluate_main([*argv, "--json", str(json_path)])
+        if code != 0:
+            raise SystemExit(f"evaluation failed: {argv}")
+    return json.loads(json_path.read_text())
+
+
+def wall_seconds(run_dir: Path) -> float:
+    try:
+        return float((run_dir / "wall_time.txt").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
+def timesteps(run_dir: Path) -> int:
+    from agents.policy_loading import CHECKPOINT_RE
+
+    steps = [int(m.group(1)) for p in (run_dir / "checkpoints").glob("*.zip") if (m := CHECKPOINT_RE.match(p.name))]
+    return max(steps, default=0)
+
+
+def fmt(values) -> str:
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        return "-"
+    if values.size == 1:
+        return f"{values[0]:.2f}"
+    return f"{values.mean():.2f} ± {values.std():.2f}"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m train.results_table", description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", help="directory holding the run directories")
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--extra-episodes", type=int, default=5, help="episodes for the stochastic/best columns")
+    parser.add_argument("--images", help="copy learning curves here as curve_<env>_<algo>_s<seed>.png")
+    args = parser.parse_args(argv)
+    root = Path(args.root)
+    runs = defaultdict(list)
+    for run_dir in sorted(p for p in root.iterdir() if p.is_dir() and RUN_RE.match(p.name)):
+        if not (run_dir / "model.zip").is_file():
+            continue
+        match = RUN_RE.match(run_dir.name)
+        env, algo, seed = match["env"], match["algo"], int(match["seed"])
+        n = args.episodes
+        det = evaluate_cached(run_dir / f"eval_deterministic_{n}.json", [str(run_dir), "--episodes", str(n)])
+        k = args.extra_episodes
+        sto = evaluate_cached(run_dir / f"eval_stochastic_{k}.json",
+                              [str(run_dir), "--episodes", str(k), "--stochastic"])
+        best = None
+        if (run_dir / "best_model" / "best_model.zip").is_file():
+            best = evaluate_cached(run_dir / f"eval_best_{k}.json",
+                                   [str(run_dir / "best_model" / "best_model.zip"), "--episodes", str(k)])
+        runs[(env, algo)].append({"seed": seed, "steps": timesteps(run_dir), "wall": wall_seconds(run_dir),
+                                  "det": det, "sto": sto, "best": best})
+        if args.images:
+            curve = run_dir / "learning_curve.png"
+            if curve.is_file():
+                Path(args.images).mkdir(parents=True, exist_ok=True)
+                shutil.copy(curve, Path(args.images) / f"curve_{env}_{algo}_s{seed}.png")
+    baselines = {}
+    for env in sorted({env for env, _ in runs}):
+        baselines[env] = evaluate_cached(root / f"serpenoid_{env}_{args.episodes}.json",
+                                         ["--baseline", "serpenoid", "--env", f"snake_env/{env}",
+                                          "--episodes", str(args.episodes)])
+    print("| env | algo | seeds | timesteps | wall time (min) | v_x deterministic (m/s) | ratio to serpenoid "
+          "| v_x stochastic (m/s) | v_x best model (m/s) | serpenoid v_x (m/s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for (env, algo), items in sorted(runs.items()):
+        items.sort(key=lambda r: r["seed"])
+        det = [r["det"]["mean_forward_velocity"] for r in items]
+        serp = baselines[env]["mean_forward_velocity"]
+        serp_std = baselines[env]["std_forward_velocity"]
+        steps = sorted({r["steps"] for r in items})
+        print(f"| {env} | {algo.upper()} | {len(items)} | {' / '.join(str(x) for x in steps)} "
+              f"| {fmt([r['wall'] / 60 for r in items])} | {fmt(det)} | {np.mean(det) / serp:.2f} "
+              f"| {fmt([r['sto']['mean_forward_velocity'] for r in items])} "
+              f"| {fmt([r['best']['mean_forward_velocity'] for r in items if r['best']])} "
+              f"| {serp:.2f} ± {serp_std:.2f} |")
+    print()
+    print("Per seed (deterministic policy, mean ± std over episodes):")
+    print()
+    print("| env | algo | seed | timesteps | wall (s) | v_x (m/s) | return |")
+    print("|---|---|---|---|---|---|---|")
+    for (env, algo), items in sorted(runs.items()):
+        for r in items:
+            d = r["det"]
+            print(f"| {env} | {algo.upper()} | {r['seed']} | {r['steps']} | {r['wall']:.0f} "
+                  f"| {d['mean_forward_velocity']:.3f} ± {d['std_forward_velocity']:.3f} "
+                  f"| {d['mean_return']:.1f} ± {d['std_return']:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
