@@ -150,6 +150,8 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, 
         steps, model_path = start
         stats_path = cb.checkpoint_paths(checkpoint_dir, steps)["vecnormalize"]
         if cfg.normalize_options(config["normalize"], config.get("gamma")) is not None:
+            if not stats_path.is_file():
+                raise cfg.ConfigError(f"--resume: {model_path.name} has no VecNormalize statistics ({stats_path.name})")
             venv = VecNormalize.load(str(stats_path), venv)
             venv.training = True
         algo_cls = cfg.algo_class(config["algo"])
