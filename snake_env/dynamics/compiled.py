@@ -224,3 +224,404 @@ def udot_batch_parallel(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     for b in prange(q.shape[0]):
         dq = np.empty(nq)
         derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq, du[b])
+
+
+# =========================================================================== lanes
+# The same RK4 of the same sweep, for many snakes at once, laid out so that the
+# innermost loop runs over snakes ("lanes") and LLVM turns it into SIMD code
+# (8 doubles per zmm register on AVX-512). Each lane is independent and every
+# lane executes the same IEEE operations (no fast-math: no FMA contraction, no
+# reassociation), so a snake's result does not depend on its lane or on the
+# batch it is in: one snake stepped alone equals the same snake in a batch, bit
+# for bit. Against the per-snake kernel above, results differ only by the
+# rounding of sin/cos (<= 1 ulp) carried through the step.
+
+# ---------------------------------------------------------------- sin and cos
+# fdlibm's argument reduction and kernels (e_rem_pio2.c "medium" case with its
+# second iteration, k_sin.c, k_cos.c), written without branches or integer
+# conversions so that a loop of them vectorises. Valid for |x| < 2^19 pi/2:
+# fn * _PIO2_1 and fn * _PIO2_2 are then exact (33-bit constants).
+_INV_PIO2 = 6.36619772367581382433e-01  # 2/pi
+_PIO2_1 = 1.57079632673412561417e+00  # first 33 bits of pi/2
+_PIO2_2 = 6.07710050630396597660e-11  # next 33 bits of pi/2
+_PIO2_2T = 2.02226624879595063154e-21  # pi/2 - _PIO2_1 - _PIO2_2
+_INV_2PI = 1.59154943091895345608e-01  # 1/(2 pi)
+_ROUND = 6755399441055744.0  # 1.5 * 2^52: (t + _ROUND) - _ROUND is t rounded to an integer (|t| < 2^51)
+_S1 = -1.66666666666666324348e-01
+_S2 = 8.33333333332248946124e-03
+_S3 = -1.98412698298579493134e-04
+_S4 = 2.75573137070700676789e-06
+_S5 = -2.50507602534068634195e-08
+_S6 = 1.58969099521155010221e-10
+_C1 = 4.16666666666666019037e-02
+_C2 = -1.38888888888741095749e-03
+_C3 = 2.48015872894767294178e-05
+_C4 = -2.75573143513906633035e-07
+_C5 = 2.08757232129817482790e-09
+_C6 = -1.13596475577881948265e-11
+SINCOS_MAX = 8.0e5  # rad: |x| up to which sincos is accurate (< 2^19 pi/2)
+# Lanes whose link angles exceed this (rad) at the start of a step are stepped
+# by the per-snake kernel (libm sin/cos) instead: with |theta| <= 1e5 every
+# argument of sincos (theta_1, and joint angles phi <= 2e5) stays far inside
+# the reduction's exact range 2^19 pi/2 = 8.2e5 rad.
+LANE_ANGLE_MAX = 1.0e5
+
+
+@njit(cache=True, nogil=True, inline="always")
+def sincos(x):
+    """(sin x, cos x) to about 1 ulp for |x| < 8e5 rad; NaN for non-finite x."""
+    fn = (x * _INV_PIO2 + _ROUND) - _ROUND  # nearest integer to x / (pi/2)
+    # y0 + y1 = x - fn pi/2 to ~118 bits (fn pi/2 in three parts)
+    r = x - fn * _PIO2_1
+    w = fn * _PIO2_2
+    t = r
+    r = t - w
+    w = fn * _PIO2_2T - ((t - r) - w)
+    y0 = r - w
+    y1 = (r - y0) - w
+    z = y0 * y0
+    v = z * y0
+    rs = _S2 + z * (_S3 + z * _S4) + z * (z * z) * (_S5 + z * _S6)
+    ks = y0 - ((z * (0.5 * y1 - v * rs) - y1) - v * _S1)
+    zz = z * z
+    rc = z * (_C1 + z * (_C2 + z * _C3)) + zz * zz * (_C4 + z * (_C5 + z * _C6))
+    hz = 0.5 * z
+    wc = 1.0 - hz
+    kc = wc + (((1.0 - wc) - hz) + (z * rc - y0 * y1))
+    # quadrant fn mod 4, as a float (no integer conversion of a possibly NaN value)
+    j = fn - 4.0 * np.floor(fn * 0.25)
+    swap = (j == 1.0) | (j == 3.0)
+    s = kc if swap else ks
+    c = ks if swap else kc
+    s = -s if j >= 2.0 else s
+    c = -c if (j == 1.0) | (j == 2.0) else c
+    return s, c
+
+
+@njit(cache=True, nogil=True, inline="always")
+def wrap_angle(phi):
+    """phi minus the nearest multiple of 2 pi (rad): phi itself for |phi| < pi."""
+    k = (phi * _INV_2PI + _ROUND) - _ROUND
+    return ((phi - k * (4.0 * _PIO2_1)) - k * (4.0 * _PIO2_2)) - k * (4.0 * _PIO2_2T)
+
+
+@njit(cache=True, nogil=True)
+def sincos_array(x, s, c):
+    """s, c = sin x, cos x elementwise with :func:`sincos` (1-D arrays)."""
+    for i in range(x.shape[0]):
+        s[i], c[i] = sincos(x[i])
+
+
+@njit(cache=True, nogil=True)
+def wrap_angle_array(phi, out):
+    """out = :func:`wrap_angle` of phi elementwise (1-D arrays)."""
+    for i in range(phi.shape[0]):
+        out[i] = wrap_angle(phi[i])
+
+
+# ---------------------------------------------------------------- lane scratch
+# One flat float64 array per group of LANES snakes, row-major: row r, lane l
+# is s[r * LANES + l]. A header of N_HEADER rows is followed by n + 1 blocks of
+# BLOCK rows, block k holding link k's rows. Every row offset is a compile-time
+# constant and indices are unsigned (no negative-index wraparound), so in each
+# lane loop all addresses are affine with constant distances: LLVM proves the
+# rows do not overlap and vectorises without run-time alias checks.
+LANES = 16
+# header rows: u (at the substep start), its stage value and RK4 sum; the CM of
+# link 1 (x, y) likewise; work of the step; stage power sum. Rows from H_FREE on
+# are left to callers (e.g. the env's CM and kinetic energy).
+(H_U0, H_U1, H_US0, H_US1, H_ACCU0, H_ACCU1, H_X, H_Y, H_XS, H_YS, H_ACCX, H_ACCY, H_WORK, H_PACC,
+ H_FREE) = range(15)
+N_HEADER = 24
+# block rows of link k: theta_k (substep start, stage, RK4 sum), torque of joint k,
+# the sweep's channels entering link k (dV/du1, dV/du2, V, Vb, domega/du1,
+# domega/du2, omega, omegab) and the sums M, r, power over links < k.
+# Rows from B_FREE on are left to callers.
+(B_Q, B_QS, B_ACC, B_TQ, B_A1, B_A2, B_V, B_VB, B_B1, B_B2, B_W, B_WB, B_M00, B_M01, B_M11, B_R0, B_R1, B_PW,
+ B_FREE) = range(19)
+BLOCK = 22
+_U = np.uint64
+# the same rows as unsigned offsets (row * LANES)
+(_H_U0, _H_U1, _H_US0, _H_US1, _H_ACCU0, _H_ACCU1, _H_X, _H_Y, _H_XS, _H_YS, _H_ACCX, _H_ACCY, _H_WORK,
+ _H_PACC) = (np.uint64(r * LANES) for r in range(14))
+(_B_Q, _B_QS, _B_ACC, _B_TQ, _B_A1, _B_A2, _B_V, _B_VB, _B_B1, _B_B2, _B_W, _B_WB, _B_M00, _B_M01, _B_M11, _B_R0,
+ _B_R1, _B_PW) = (np.uint64(r * LANES) for r in range(18))
+_NEXT = np.uint64(BLOCK * LANES)  # from one block to the next
+
+
+@njit(cache=True, nogil=True)
+def lanes_scratch_size(n):
+    """Floats of the lane scratch for n links."""
+    return (N_HEADER + (n + 1) * BLOCK) * LANES
+
+
+@njit(cache=True, nogil=True, inline="always")
+def lane_block(k):
+    """Unsigned offset of link k's block in the lane scratch."""
+    return _U(N_HEADER * LANES) + _U(k) * _NEXT
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rk4_update(z, acc, k, first, last, c, sixth):
+    """RK4 bookkeeping of one coordinate after a stage derivative k, as in
+    :func:`rk4_step_workspace`: (z, its value for the next stage, running sum)."""
+    acc_new = k if first else acc + 2.0 * k
+    z_new = z + sixth * (acc + k) if last else z
+    zs_new = z_new if last else z + c * k
+    return z_new, zs_new, acc_new
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, stage, dt):
+    """RK4 stage ``stage`` (1..4) of lanes 0..nl-1 of the scratch s: the
+    derivative at the stage state (rows QS, US) by the sweep of
+    :func:`derivatives`, then the stage's update of (Q, QS, ACC), (U, US, ACCU),
+    (X, XS, ACCX), (Y, YS, ACCY) and the power sums.
+
+    The link loop is outermost: the channels of link k are read from block k
+    and those of link k+1 written to block k+1. ``error_model="numpy"``: a
+    singular or NaN state gives inf/NaN (caught by the caller's finite check)
+    instead of an exception, and keeps the loops free of exits.
+    """
+    n = m.shape[0]
+    first = stage == 1
+    last = stage == 4
+    c = dt if stage == 3 else 0.5 * dt
+    sixth = dt / 6.0
+    use_limit = limit > 0.0
+    lanes = _U(nl)
+    b0 = lane_block(0)
+    # link 1: qdot of x, y (eq. 1: (x, y) moves with V_1 along e_1) and the sweep's start values
+    for l in range(lanes):
+        V = s[_H_US0 + l]
+        W = s[_H_US1 + l]
+        sn, cs = sincos(s[b0 + _B_QS + l])
+        x, xs, ax = _rk4_update(s[_H_X + l], s[_H_ACCX + l], V * cs, first, last, c, sixth)
+        s[_H_X + l] = x
+        s[_H_XS + l] = xs
+        s[_H_ACCX + l] = ax
+        y, ys, ay = _rk4_update(s[_H_Y + l], s[_H_ACCY + l], V * sn, first, last, c, sixth)
+        s[_H_Y + l] = y
+        s[_H_YS + l] = ys
+        s[_H_ACCY + l] = ay
+        s[b0 + _B_A1 + l] = 1.0
+        s[b0 + _B_A2 + l] = 0.0
+        s[b0 + _B_V + l] = V
+        s[b0 + _B_VB + l] = 0.0
+        s[b0 + _B_B1 + l] = 0.0
+        s[b0 + _B_B2 + l] = 1.0
+        s[b0 + _B_W + l] = W
+        s[b0 + _B_WB + l] = 0.0
+        s[b0 + _B_M00 + l] = 0.0
+        s[b0 + _B_M01 + l] = 0.0
+        s[b0 + _B_M11 + l] = 0.0
+        s[b0 + _B_R0 + l] = 0.0
+        s[b0 + _B_R1 + l] = 0.0
+        s[b0 + _B_PW + l] = 0.0
+    for k in range(n):
+        o = lane_block(k)
+        p = o + _NEXT
+        mk = m[k]
+        Ik = inertia[k]
+        cwk = c_wheel[k]
+        joint = k < n - 1
+        hk = h[k]
+        hn = h[k + 1] if joint else 1.0
+        inv_hn = 1.0 / hn
+        cjk = c_joint[k] if joint else 0.0
+        for l in range(lanes):
+            a1 = s[o + _B_A1 + l]
+            a2 = s[o + _B_A2 + l]
+            V = s[o + _B_V + l]
+            Vb = s[o + _B_VB + l]
+            b1 = s[o + _B_B1 + l]
+            b2 = s[o + _B_B2 + l]
+            W = s[o + _B_W + l]
+            Wb = s[o + _B_WB + l]
+            # eq. 9 and N omega, accumulated for link k
+            M00 = s[o + _B_M00 + l] + (mk * a1 * a1 + Ik * b1 * b1)
+            M01 = s[o + _B_M01 + l] + (mk * a1 * a2 + Ik * b1 * b2)
+            M11 = s[o + _B_M11 + l] + (mk * a2 * a2 + Ik * b2 * b2)
+            f = -cwk * V  # rolling resistance (N)
+            power = s[o + _B_PW + l] + f * V
+            r0 = s[o + _B_R0 + l] + (f * a1 - (mk * a1 * Vb + Ik * b1 * Wb))
+            r1 = s[o + _B_R1 + l] + (f * a2 - (mk * a2 * Vb + Ik * b2 * Wb))
+            # theta_k is not read again in this stage: its update goes here (qdot_k = omega_k)
+            phi = s[p + _B_QS + l] - s[o + _B_QS + l]
+            th, ths, acc = _rk4_update(s[o + _B_Q + l], s[o + _B_ACC + l], W, first, last, c, sixth)
+            s[o + _B_Q + l] = th
+            s[o + _B_QS + l] = ths
+            s[o + _B_ACC + l] = acc
+            if joint:
+                # eqs. 6-7, 13-14 and their time derivative, link k -> k+1
+                S, C = sincos(phi)
+                hS = hk * S
+                hC = hk * C
+                na1 = a1 * C + b1 * hS
+                na2 = a2 * C + b2 * hS
+                nV = V * C + W * hS
+                nVb = Vb * C + Wb * hS
+                nb1 = (a1 * S - b1 * hC) * inv_hn
+                nb2 = (a2 * S - b2 * hC) * inv_hn
+                nW = (V * S - W * hC) * inv_hn
+                nWb = (Vb * S - Wb * hC) * inv_hn
+                phidot = nW - W
+                nVb -= hn * nW * phidot
+                nWb += nV * phidot * inv_hn
+                # eq. 11: joint k acts +T on link k+1, -T on link k; soft limit beyond |phi| > limit
+                T = s[o + _B_TQ + l] - cjk * phidot
+                if use_limit:
+                    beyond = (phi > limit) | (phi < -limit)
+                    excess = phi - limit if phi > limit else phi + limit
+                    T = T - (k_limit * excess + c_limit * phidot) if beyond else T
+                r0 += T * (nb1 - b1)
+                r1 += T * (nb2 - b2)
+                power += T * phidot
+                s[p + _B_A1 + l] = na1
+                s[p + _B_A2 + l] = na2
+                s[p + _B_V + l] = nV
+                s[p + _B_VB + l] = nVb
+                s[p + _B_B1 + l] = nb1
+                s[p + _B_B2 + l] = nb2
+                s[p + _B_W + l] = nW
+                s[p + _B_WB + l] = nWb
+            s[p + _B_M00 + l] = M00
+            s[p + _B_M01 + l] = M01
+            s[p + _B_M11 + l] = M11
+            s[p + _B_R0 + l] = r0
+            s[p + _B_R1 + l] = r1
+            s[p + _B_PW + l] = power
+    # eq. 8 solved for udot (2x2), then the update of u and of the work
+    o = lane_block(n)
+    for l in range(lanes):
+        M00 = s[o + _B_M00 + l]
+        M01 = s[o + _B_M01 + l]
+        M11 = s[o + _B_M11 + l]
+        r0 = s[o + _B_R0 + l]
+        r1 = s[o + _B_R1 + l]
+        power = s[o + _B_PW + l]
+        det = M00 * M11 - M01 * M01
+        du0 = (M11 * r0 - M01 * r1) / det
+        du1 = (M00 * r1 - M01 * r0) / det
+        u0, us0, acc0 = _rk4_update(s[_H_U0 + l], s[_H_ACCU0 + l], du0, first, last, c, sixth)
+        u1, us1, acc1 = _rk4_update(s[_H_U1 + l], s[_H_ACCU1 + l], du1, first, last, c, sixth)
+        s[_H_U0 + l] = u0
+        s[_H_US0 + l] = us0
+        s[_H_ACCU0 + l] = acc0
+        s[_H_U1 + l] = u1
+        s[_H_US1 + l] = us1
+        s[_H_ACCU1 + l] = acc1
+        # work += dt/6 (p1 + 2 p2 + 2 p3 + p4), summed left to right as in rk4_step_workspace
+        pacc = s[_H_PACC + l]
+        work = s[_H_WORK + l]
+        s[_H_WORK + l] = work + sixth * (pacc + power) if last else work
+        s[_H_PACC + l] = power if first else pacc + 2.0 * power
+
+
+@njit(cache=True, nogil=True)
+def rk4_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, dt, n_substeps):
+    """``n_substeps`` RK4 steps of lanes 0..nl-1 (loaded by :func:`load_lanes`);
+    the work of the loads is added to row H_WORK."""
+    for _ in range(n_substeps):
+        for stage in range(1, 5):
+            rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, stage, dt)
+
+
+@njit(cache=True, nogil=True)
+def load_lanes(s, q, u, torques, index, start, nl):
+    """Lane l <- snake index[start + l] of q (B, n+2), u (B, 2), torques (B, n-1), l < nl;
+    stage state = state, work 0."""
+    n = q.shape[1] - 2
+    for l in range(nl):
+        b = index[start + l]
+        for k in range(n):
+            o = lane_block(k)
+            s[o + _B_Q + l] = q[b, k]
+            s[o + _B_QS + l] = q[b, k]
+            if k < n - 1:
+                s[o + _B_TQ + l] = torques[b, k]
+        s[_H_X + l] = q[b, n]
+        s[_H_Y + l] = q[b, n + 1]
+        s[_H_U0 + l] = u[b, 0]
+        s[_H_U1 + l] = u[b, 1]
+        s[_H_US0 + l] = u[b, 0]
+        s[_H_US1 + l] = u[b, 1]
+        s[_H_WORK + l] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def store_lanes(s, q, u, work, index, start, nl):
+    """Inverse of :func:`load_lanes` for the state, plus work[b] (J)."""
+    n = q.shape[1] - 2
+    for l in range(nl):
+        b = index[start + l]
+        for k in range(n):
+            q[b, k] = s[lane_block(k) + _B_Q + l]
+        q[b, n] = s[_H_X + l]
+        q[b, n + 1] = s[_H_Y + l]
+        u[b, 0] = s[_H_U0 + l]
+        u[b, 1] = s[_H_U1 + l]
+        work[b] = s[_H_WORK + l]
+
+
+@njit(cache=True, nogil=True)
+def split_lanes(q):
+    """(index, count, wide): snakes whose angles all satisfy |theta_k| <=
+    LANE_ANGLE_MAX go to lanes (index[:count], in order); the others
+    (index[count:]) to the per-snake kernel."""
+    n = q.shape[1] - 2
+    B = q.shape[0]
+    index = np.empty(B, np.int64)
+    count = 0
+    wide = B
+    for b in range(B):
+        inside = True
+        for k in range(n):
+            inside = inside and abs(q[b, k]) <= LANE_ANGLE_MAX
+        if inside:
+            index[count] = b
+            count += 1
+        else:
+            wide -= 1
+            index[wide] = b
+    return index, count
+
+
+@njit(cache=True, nogil=True)
+def _rk4_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work,
+                    index, start, nl, s):
+    load_lanes(s, q, u, torques, index, start, nl)
+    rk4_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, dt, n_substeps)
+    store_lanes(s, q, u, work, index, start, nl)
+
+
+@njit(cache=True, nogil=True)
+def rk4_step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work):
+    """:func:`rk4_step_batch` by the lane kernel on one thread: q (B, n+2),
+    u (B, 2), torques (B, n-1) in place; work (B,) out."""
+    index, count = split_lanes(q)
+    for i in range(count, q.shape[0]):
+        b = index[i]
+        work[b] = rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q[b], u[b], torques[b], dt,
+                           n_substeps)
+    s = np.empty(lanes_scratch_size(m.shape[0]))
+    for start in range(0, count, LANES):
+        _rk4_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work,
+                        index, start, min(LANES, count - start), s)
+
+
+@njit(cache=True, parallel=True)
+def rk4_step_lanes_parallel(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps,
+                            work):
+    """:func:`rk4_step_lanes` with the lane groups spread over threads."""
+    index, count = split_lanes(q)
+    for i in range(count, q.shape[0]):
+        b = index[i]
+        work[b] = rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q[b], u[b], torques[b], dt,
+                           n_substeps)
+    size = lanes_scratch_size(m.shape[0])
+    for group in prange((count + LANES - 1) // LANES):
+        start = group * LANES
+        s = np.empty(size)
+        _rk4_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work,
+                        index, start, min(LANES, count - start), s)
