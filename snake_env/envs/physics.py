@@ -4,17 +4,22 @@
 and everything the env reports about it; it never mutates its inputs.
 Batching is a leading axis: q (B, n+2), u (B, 2), torques (B, n-1) step B
 snakes in one compiled call, and 1-D inputs step one snake. Both paths run
-the same compiled per-snake function (:func:`_step_one`), so a batch of one
-reproduces the single snake bit for bit; the single env uses the 1-D path
-and the vector env the batched one.
+the same lane kernel (:func:`_step_lanes`: groups of ``compiled.LANES``
+snakes with the snake index innermost, so the loops compile to SIMD code),
+whose result for a snake does not depend on the batch it is in: a batch of
+one reproduces the single snake bit for bit, and so the single env equals
+the vector env.
 
-The integrator is the compiled RK4 kernel of
+The integrator is the compiled RK4 lane kernel of
 :mod:`snake_env.dynamics.compiled` (the O(n) Kane sweep of eqs. 6-21 plus
 damping and soft joint limits). Around it this module adds what the RL
 interface needs: the mass-weighted centre of mass of the whole snake (whose
 finite difference over one env step is the reward's velocity), the
 observation vector, the kinetic energy (eq. 22 under the constraints) and a
 non-finite guard that restores the pre-step state instead of returning NaN.
+A snake whose link angles exceed ``compiled.LANE_ANGLE_MAX`` (1e5 rad, only
+after thousands of turns) is stepped by the per-snake kernel
+(:func:`_step_one`, libm sin/cos) instead.
 """
 
 from __future__ import annotations
@@ -81,6 +86,25 @@ def observation_size(n_links: int, include_position: bool) -> int:
 
 
 # --------------------------------------------------------------------------- kernels
+# sin/cos and angle wrapping are those of the lane kernel (compiled.sincos,
+# compiled.wrap_angle) wherever they are accurate, so that a state's
+# observation is the same bit for bit whether it comes from a (lane) step,
+# reset() or observe(); libm beyond that range.
+@njit(cache=True, nogil=True, inline="always")
+def _sincos(x):
+    if abs(x) <= compiled.SINCOS_MAX:
+        return compiled.sincos(x)
+    return math.sin(x), math.cos(x)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _wrap(phi):
+    """phi wrapped to [-pi, pi] (rad)."""
+    if abs(phi) <= compiled.SINCOS_MAX:
+        return compiled.wrap_angle(phi)
+    return math.atan2(math.sin(phi), math.cos(phi))
+
+
 @njit(cache=True, nogil=True)
 def _center_of_mass(m, h, q):
     """Mass-weighted CM of the whole snake (m): CM_{k+1} = CM_k + h_k e_k + h_{k+1} e_{k+1} (eq. 3)."""
@@ -90,12 +114,16 @@ def _center_of_mass(m, h, q):
     sx = m[0] * px
     sy = m[0] * py
     total = m[0]
+    sn, cs = _sincos(q[0])
     for k in range(n - 1):
-        px += h[k] * math.cos(q[k]) + h[k + 1] * math.cos(q[k + 1])
-        py += h[k] * math.sin(q[k]) + h[k + 1] * math.sin(q[k + 1])
+        sn_next, cs_next = _sincos(q[k + 1])
+        px += h[k] * cs + h[k + 1] * cs_next
+        py += h[k] * sn + h[k + 1] * sn_next
         sx += m[k + 1] * px
         sy += m[k + 1] * py
         total += m[k + 1]
+        sn = sn_next
+        cs = cs_next
     return sx / total, sy / total
 
 
@@ -113,11 +141,11 @@ def _observe(m, h, inertia, q, u, include_position, cx, cy, obs):
         j = 2
     # joint angles phi_k = theta_{k+1} - theta_k, wrapped to (-pi, pi]
     for k in range(n - 1):
-        phi = q[k + 1] - q[k]
-        obs[j + k] = math.atan2(math.sin(phi), math.cos(phi))
+        obs[j + k] = _wrap(q[k + 1] - q[k])
     j += n - 1
-    obs[j] = math.cos(q[0])
-    obs[j + 1] = math.sin(q[0])
+    sn, cs = _sincos(q[0])
+    obs[j] = cs
+    obs[j + 1] = sn
     obs[j + 2] = u[0]
     obs[j + 3] = u[1]
     j += 4
@@ -126,8 +154,7 @@ def _observe(m, h, inertia, q, u, include_position, cx, cy, obs):
     kinetic = 0.5 * (m[0] * V * V + inertia[0] * W * W)
     for k in range(n - 1):
         phi = q[k + 1] - q[k]
-        C = math.cos(phi)
-        S = math.sin(phi)
+        S, C = _sincos(phi)
         nV = V * C + W * h[k] * S  # eq. 6
         nW = (V * S - W * h[k] * C) / h[k + 1]  # eq. 7
         obs[j + k] = nW - W  # joint rate phidot_k
@@ -174,20 +201,227 @@ def _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, 
     aux[AUX_FAILED] = 0.0 if finite else 1.0
 
 
-@njit(cache=True, parallel=True)
-def _step_batch(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                q, u, torques, obs, aux):
-    for b in prange(q.shape[0]):
-        _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                  q[b], u[b], torques[b], obs[b], aux[b])
+# --------------------------------------------------------------------------- lane kernels
+# The env step for groups of compiled.LANES snakes in the lane scratch of
+# :mod:`snake_env.dynamics.compiled`: the innermost loops run over snakes and
+# vectorise (see the notes there). Rows used here besides the integrator's:
+_U = np.uint64
+_LANES = compiled.LANES
+_H_CX0, _H_CY0, _H_CX, _H_CY, _H_KINETIC, _H_COS1, _H_SIN1 = (
+    _U((compiled.H_FREE + i) * _LANES) for i in range(7))
+# per link k: cos, sin of theta_k (CM sweep); observed joint angle and rate of joint k
+_B_COS, _B_SIN, _B_PHI, _B_PHIDOT = (_U((compiled.B_FREE + i) * _LANES) for i in range(4))
+# running sums of the CM and kinetic-energy sweeps, in the integrator's channel
+# rows (free outside a derivative evaluation)
+_B_PX, _B_PY, _B_SX, _B_SY = (_U(row * _LANES) for row in (compiled.B_A1, compiled.B_A2, compiled.B_B1, compiled.B_B2))
+_B_V, _B_W, _B_K = (_U(row * _LANES) for row in (compiled.B_V, compiled.B_W, compiled.B_M00))
+_B_Q = _U(compiled.B_Q * _LANES)
+_H_X, _H_Y, _H_U0, _H_U1, _H_WORK = (
+    _U(row * _LANES) for row in (compiled.H_X, compiled.H_Y, compiled.H_U0, compiled.H_U1, compiled.H_WORK))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _center_of_mass_lanes(m, h, total_mass, s, nl, row_x, row_y):
+    """:func:`_center_of_mass` of lanes 0..nl-1 (state rows Q, X, Y) into rows row_x, row_y (m)."""
+    n = m.shape[0]
+    lanes = _U(nl)
+    b0 = compiled.lane_block(0)
+    m0 = m[0]
+    for l in range(lanes):
+        sn, cs = compiled.sincos(s[b0 + _B_Q + l])
+        s[b0 + _B_COS + l] = cs
+        s[b0 + _B_SIN + l] = sn
+        px = s[_H_X + l]
+        py = s[_H_Y + l]
+        s[b0 + _B_PX + l] = px
+        s[b0 + _B_PY + l] = py
+        s[b0 + _B_SX + l] = m0 * px
+        s[b0 + _B_SY + l] = m0 * py
+    for k in range(n - 1):
+        o = compiled.lane_block(k)
+        p = o + compiled.lane_block(1) - compiled.lane_block(0)
+        hk = h[k]
+        hn = h[k + 1]
+        mn = m[k + 1]
+        for l in range(lanes):
+            sn, cs = compiled.sincos(s[p + _B_Q + l])
+            # CM_{k+1} = CM_k + h_k e_k + h_{k+1} e_{k+1} (eq. 3)
+            px = s[o + _B_PX + l] + (hk * s[o + _B_COS + l] + hn * cs)
+            py = s[o + _B_PY + l] + (hk * s[o + _B_SIN + l] + hn * sn)
+            s[p + _B_COS + l] = cs
+            s[p + _B_SIN + l] = sn
+            s[p + _B_PX + l] = px
+            s[p + _B_PY + l] = py
+            s[p + _B_SX + l] = s[o + _B_SX + l] + mn * px
+            s[p + _B_SY + l] = s[o + _B_SY + l] + mn * py
+    o = compiled.lane_block(n - 1)
+    for l in range(lanes):
+        s[row_x + l] = s[o + _B_SX + l] / total_mass
+        s[row_y + l] = s[o + _B_SY + l] / total_mass
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _observe_lanes(m, h, inertia, s, nl):
+    """The parts of :func:`_observe` that need a sweep, for lanes 0..nl-1 (state
+    rows Q, U): joint angles wrapped to (-pi, pi] and joint rates (per-link rows),
+    cos/sin of theta_1 and the kinetic energy (J) (header rows)."""
+    n = m.shape[0]
+    lanes = _U(nl)
+    b0 = compiled.lane_block(0)
+    for l in range(lanes):
+        V = s[_H_U0 + l]
+        W = s[_H_U1 + l]
+        s[b0 + _B_V + l] = V
+        s[b0 + _B_W + l] = W
+        s[b0 + _B_K + l] = 0.5 * (m[0] * V * V + inertia[0] * W * W)
+        sn, cs = compiled.sincos(s[b0 + _B_Q + l])
+        s[_H_COS1 + l] = cs
+        s[_H_SIN1 + l] = sn
+    for k in range(n - 1):
+        o = compiled.lane_block(k)
+        p = o + compiled.lane_block(1) - compiled.lane_block(0)
+        hk = h[k]
+        hn = h[k + 1]
+        mn = m[k + 1]
+        In = inertia[k + 1]
+        for l in range(lanes):
+            phi = s[p + _B_Q + l] - s[o + _B_Q + l]
+            S, C = compiled.sincos(phi)
+            V = s[o + _B_V + l]
+            W = s[o + _B_W + l]
+            nV = V * C + W * hk * S  # eq. 6
+            nW = (V * S - W * hk * C) / hn  # eq. 7
+            s[o + _B_PHI + l] = compiled.wrap_angle(phi)
+            s[o + _B_PHIDOT + l] = nW - W
+            s[p + _B_V + l] = nV
+            s[p + _B_W + l] = nW
+            s[p + _B_K + l] = s[o + _B_K + l] + 0.5 * (mn * nV * nV + In * nW * nW)
+    o = compiled.lane_block(n - 1)
+    for l in range(lanes):
+        s[_H_KINETIC + l] = s[o + _B_K + l]
 
 
 @njit(cache=True, nogil=True)
-def _step_batch_serial(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                       q, u, torques, obs, aux):
-    for b in range(q.shape[0]):
+def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+                     total_mass, q, u, torques, obs, aux, index, start, nl, s):
+    """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES), in lanes."""
+    n = m.shape[0]
+    compiled.load_lanes(s, q, u, torques, index, start, nl)
+    _center_of_mass_lanes(m, h, total_mass, s, nl, _H_CX0, _H_CY0)
+    compiled.rk4_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, sim_dt, frame_skip)
+    _center_of_mass_lanes(m, h, total_mass, s, nl, _H_CX, _H_CY)
+    # non-finite guard, as in _step_one: a failed snake keeps its pre-step state
+    # (still in q, u: they are written back only below)
+    failed = np.zeros(nl, np.bool_)
+    for l in range(nl):
+        lane = _U(l)
+        finite = (math.isfinite(s[_H_WORK + lane]) and math.isfinite(s[_H_U0 + lane])
+                  and math.isfinite(s[_H_U1 + lane]) and math.isfinite(s[_H_X + lane])
+                  and math.isfinite(s[_H_Y + lane]))
+        for k in range(n):
+            finite = finite and math.isfinite(s[compiled.lane_block(k) + _B_Q + lane])
+        finite = finite and math.isfinite(s[_H_CX + lane]) and math.isfinite(s[_H_CY + lane])
+        if not finite:
+            failed[l] = True
+            b = index[start + l]
+            for k in range(n):
+                s[compiled.lane_block(k) + _B_Q + lane] = q[b, k]
+            s[_H_X + lane] = q[b, n]
+            s[_H_Y + lane] = q[b, n + 1]
+            s[_H_U0 + lane] = u[b, 0]
+            s[_H_U1 + lane] = u[b, 1]
+            s[_H_CX + lane] = s[_H_CX0 + lane]
+            s[_H_CY + lane] = s[_H_CY0 + lane]
+            s[_H_WORK + lane] = 0.0
+    _observe_lanes(m, h, inertia, s, nl)
+    env_dt = sim_dt * frame_skip
+    for l in range(nl):
+        lane = _U(l)
+        b = index[start + l]
+        for k in range(n):
+            q[b, k] = s[compiled.lane_block(k) + _B_Q + lane]
+        q[b, n] = s[_H_X + lane]
+        q[b, n + 1] = s[_H_Y + lane]
+        u[b, 0] = s[_H_U0 + lane]
+        u[b, 1] = s[_H_U1 + lane]
+        cx = s[_H_CX + lane]
+        cy = s[_H_CY + lane]
+        j = 0
+        if include_position:
+            obs[b, 0] = cx
+            obs[b, 1] = cy
+            j = 2
+        for k in range(n - 1):
+            obs[b, j + k] = s[compiled.lane_block(k) + _B_PHI + lane]
+        j += n - 1
+        obs[b, j] = s[_H_COS1 + lane]
+        obs[b, j + 1] = s[_H_SIN1 + lane]
+        obs[b, j + 2] = u[b, 0]
+        obs[b, j + 3] = u[b, 1]
+        j += 4
+        for k in range(n - 1):
+            obs[b, j + k] = s[compiled.lane_block(k) + _B_PHIDOT + lane]
+        aux[b, AUX_X] = cx
+        aux[b, AUX_Y] = cy
+        aux[b, AUX_VX] = (cx - s[_H_CX0 + lane]) / env_dt
+        aux[b, AUX_VY] = (cy - s[_H_CY0 + lane]) / env_dt
+        aux[b, AUX_KINETIC] = s[_H_KINETIC + lane]
+        aux[b, AUX_WORK] = s[_H_WORK + lane]
+        aux[b, AUX_FAILED] = 1.0 if failed[l] else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _total_mass(m):
+    total = m[0]  # summed in the order of _center_of_mass
+    for k in range(1, m.shape[0]):
+        total += m[k]
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+                q, u, torques, obs, aux):
+    """Step B snakes on one thread: lane groups of compiled.LANES, and
+    :func:`_step_one` for the rare snake whose angles exceed the lanes' sin/cos range."""
+    index, count = compiled.split_lanes(q)
+    for i in range(count, q.shape[0]):
+        b = index[i]
         _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
                   q[b], u[b], torques[b], obs[b], aux[b])
+    s = np.empty(compiled.lanes_scratch_size(m.shape[0]))
+    total_mass = _total_mass(m)
+    for start in range(0, count, _LANES):
+        _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
+                         include_position, total_mass, q, u, torques, obs, aux, index, start,
+                         min(_LANES, count - start), s)
+
+
+@njit(cache=True, parallel=True)
+def _step_lanes_parallel(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
+                         include_position, q, u, torques, obs, aux):
+    """:func:`_step_lanes` with the lane groups spread over threads."""
+    index, count = compiled.split_lanes(q)
+    for i in range(count, q.shape[0]):
+        b = index[i]
+        _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+                  q[b], u[b], torques[b], obs[b], aux[b])
+    size = compiled.lanes_scratch_size(m.shape[0])
+    total_mass = _total_mass(m)
+    for group in prange((count + _LANES - 1) // _LANES):
+        start = group * _LANES
+        s = np.empty(size)
+        _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
+                         include_position, total_mass, q, u, torques, obs, aux, index, start,
+                         min(_LANES, count - start), s)
+
+
+@njit(cache=True, nogil=True)
+def _step_lanes_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+                    q, u, torques, obs, aux):
+    """One snake (1-D arrays) through the lane kernel, so it equals any row of a batch bit for bit."""
+    _step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+                q.reshape((1, q.shape[0])), u.reshape((1, 2)), torques.reshape((1, torques.shape[0])),
+                obs.reshape((1, obs.shape[0])), aux.reshape((1, aux.shape[0])))
 
 
 @njit(cache=True, nogil=True)
@@ -273,10 +507,10 @@ def step(params: PhysicsParams, q, u, torques):
 
 def _kernel(q):
     if q.ndim == 1:
-        return _step_one
+        return _step_lanes_one
     # threads pay off only for enough work per call; waking them costs more than
     # stepping a few snakes (and far more on a loaded machine)
-    return _step_batch if q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK else _step_batch_serial
+    return _step_lanes_parallel if q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK else _step_lanes
 
 
 def step_inplace(params: PhysicsParams, q, u, torques, obs, aux):
