@@ -35,8 +35,15 @@ from snake_env.dynamics import compiled
 # Layout of the per-snake auxiliary output row (float64).
 AUX_X, AUX_Y, AUX_VX, AUX_VY, AUX_KINETIC, AUX_WORK, AUX_FAILED = range(7)
 AUX_SIZE = 7
-# Batches with fewer than this many coordinates (B * (n+2)) are stepped on one thread.
-PARALLEL_MIN_WORK = 512
+# Batches with fewer than this many coordinates (B * (n+2)) are stepped on one
+# thread. Measured on the shared 2-core machine (load average ~3, lane kernel):
+# one thread steps 1.2-1.5 million Snake5 env-steps/s at every B from 64 to 4096
+# (about 0.7 us per Snake5 step, 4 us per Snake30 step), while a threaded call
+# costs a nearly constant ~8 ms under load (waiting for the second core), so
+# threads lose below ~16 ms of serial work: 2^17 coordinates, i.e. about 18,000
+# Snake5 or 4,000 Snake30 envs. On an idle machine threads would pay off much
+# earlier; RL training seldom leaves a core idle (torch, the agent).
+PARALLEL_MIN_WORK = 2 ** 17
 
 
 @dataclass(frozen=True)
@@ -508,8 +515,7 @@ def step(params: PhysicsParams, q, u, torques):
 def _kernel(q):
     if q.ndim == 1:
         return _step_lanes_one
-    # threads pay off only for enough work per call; waking them costs more than
-    # stepping a few snakes (and far more on a loaded machine)
+    # threads pay off only for enough work per call (see PARALLEL_MIN_WORK)
     return _step_lanes_parallel if q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK else _step_lanes
 
 

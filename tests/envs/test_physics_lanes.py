@@ -85,3 +85,20 @@ def test_observation_of_a_stepped_state_equals_observe(rng):
     np.testing.assert_array_equal(obs_again, obs)
     np.testing.assert_array_equal(aux_again[:, :2], aux[:, :2])  # CM position
     np.testing.assert_array_equal(aux_again[:, AUX_KINETIC], aux[:, AUX_KINETIC])
+
+
+def test_threaded_lane_step_equals_the_serial_one(rng):
+    """The threaded kernel (used for very large batches) gives the serial kernel's bits."""
+    env = SnakeEnv(n_links=4)
+    p = env.params
+    B = 3 * compiled.LANES + 1
+    q, u, torques = _states(rng, 4, B, bend=0.6)
+    outputs = []
+    for kernel in (physics._step_lanes, physics._step_lanes_parallel):
+        qk, uk = q.copy(), u.copy()
+        obs, aux = np.empty((B, p.obs_size)), np.empty((B, AUX_SIZE))
+        kernel(p.mass, p.half_length, p.inertia, p.joint_damping, p.wheel_damping, p.joint_limit,
+               p.limit_stiffness, p.limit_damping, p.sim_dt, p.frame_skip, p.include_position, qk, uk, torques, obs, aux)
+        outputs.append((qk, uk, obs, aux))
+    for serial, threaded in zip(*outputs):
+        np.testing.assert_array_equal(threaded, serial)
