@@ -6,6 +6,7 @@ import csv
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -78,6 +79,38 @@ def plot_trajectories(trajectories, path, title: str) -> None:
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     if len(trajectories) <= 10:
+        ax.legend(fontsize="small")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def plot_campaign(groups, baselines, path, episode_steps: int = 1000) -> None:
+    """One panel per env: deterministic evaluation speed (eval return / episode
+    steps, m/s, as ctrl cost is ~1e-4 of it) of every run against env steps,
+    and the serpenoid baseline as a horizontal line.
+
+    ``groups``: {(env, algo): [evaluations.npz paths]}; ``baselines``: {env: m/s}.
+    """
+    import numpy as np
+
+    envs = sorted({env for env, _ in groups})
+    fig, axes = plt.subplots(1, len(envs), figsize=(5.2 * len(envs), 3.8), squeeze=False)
+    colors = {"ppo": "tab:blue", "sac": "tab:orange"}
+    for ax, env in zip(axes[0], envs):
+        for (group_env, algo), files in sorted(groups.items()):
+            if group_env != env:
+                continue
+            for index, npz in enumerate(files):
+                data = np.load(npz)
+                ax.plot(data["timesteps"], data["results"].mean(axis=1) / episode_steps, color=colors.get(algo),
+                        alpha=0.8, linewidth=1.2, label=algo.upper() if index == 0 else None)
+        if env in baselines:
+            ax.axhline(baselines[env], color="k", linestyle="--", linewidth=1, label="serpenoid (searched)")
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x / 1000:.0f}k"))
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel("mean forward speed of the CM (m/s)")
+        ax.set_title(env)
+        ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small")
     fig.tight_layout()
     save_figure(fig, path)

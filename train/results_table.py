@@ -92,6 +92,13 @@ def main(argv=None) -> int:
         baselines[env] = evaluate_cached(root / f"serpenoid_{env}_{args.episodes}.json",
                                          ["--baseline", "serpenoid", "--env", f"snake_env/{env}",
                                           "--episodes", str(args.episodes)])
+    if args.images:
+        from train.plots import plot_campaign
+
+        groups = {key: [root / f"{key[0]}__{key[1]}__s{r['seed']}" / "eval" / "evaluations.npz" for r in items]
+                  for key, items in runs.items()}
+        plot_campaign(groups, {env: b["mean_forward_velocity"] for env, b in baselines.items()},
+                      Path(args.images) / "curve_summary.png")
     print("| env | algo | seeds | timesteps | wall time (min) | v_x deterministic (m/s) | ratio to serpenoid "
           "| v_x stochastic (m/s) | v_x best model (m/s) | serpenoid v_x (m/s) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
