@@ -371,7 +371,7 @@ def _rk4_update(z, acc, k, first, last, c, sixth):
     return z_new, zs_new, acc_new
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, stage, dt):
     """RK4 stage ``stage`` (1..4) of lanes 0..nl-1 of the scratch s: the
     derivative at the stage state (rows QS, US) by the sweep of
@@ -518,13 +518,18 @@ def rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s,
         s[_H_PACC + l] = power if first else pacc + 2.0 * power
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rk4_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, dt, n_substeps):
     """``n_substeps`` RK4 steps of lanes 0..nl-1 (loaded by :func:`load_lanes`);
-    the work of the loads is added to row H_WORK."""
+    the work of the loads is added to row H_WORK.
+
+    The four stages are written out with constant stage numbers and inlined,
+    so each copy keeps only its own RK4 bookkeeping."""
     for _ in range(n_substeps):
-        for stage in range(1, 5):
-            rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, stage, dt)
+        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 1, dt)
+        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 2, dt)
+        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 3, dt)
+        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 4, dt)
 
 
 @njit(cache=True, nogil=True)
