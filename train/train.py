@@ -82,7 +82,7 @@ def prepare(args) -> tuple[dict, Path, bool]:
     return config, run_dir, False
 
 
-def build_model(config: dict, venv, log_dir: Path, verbose: int):
+def build_model(config: dict, venv, verbose: int):
     algo_cls = cfg.algo_class(config["algo"])
     try:
         return algo_cls(config["policy"], venv, seed=config["seed"], device="cpu", verbose=verbose,
@@ -145,7 +145,7 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, 
     if start is None:
         cfg.save_config(config, run_dir / "config.yaml")
         venv = wrap_normalize(venv, config, training=True)
-        model = build_model(config, venv, log_dir, verbose)
+        model = build_model(config, venv, verbose)
     else:
         steps, model_path = start
         stats_path = cb.checkpoint_paths(checkpoint_dir, steps)["vecnormalize"]
