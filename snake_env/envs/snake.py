@@ -103,6 +103,28 @@ def build_physics(n_links, sim_dt, frame_skip, mass, length, inertia, joint_damp
     return model, params, settings
 
 
+def configure(env, *, n_links, frame_skip, sim_dt, max_torque, forward_reward_weight, ctrl_cost_weight,
+              reset_noise_scale, exclude_current_positions_from_observation, joint_damping, wheel_damping,
+              joint_limit, joint_limit_stiffness, joint_limit_damping, paper_model, mass, length, inertia,
+              render_mode, width, height):
+    """Validate the constructor kwargs shared by :class:`SnakeEnv` and the vector
+    env and set them as attributes of ``env`` (same names as the kwargs)."""
+    env.model, env.params, settings = build_physics(
+        n_links, sim_dt, frame_skip, mass, length, inertia, joint_damping, wheel_damping, joint_limit,
+        joint_limit_stiffness, joint_limit_damping, paper_model, exclude_current_positions_from_observation)
+    for name, value in settings.items():
+        setattr(env, name, value)
+    env.max_torque = _number("max_torque", max_torque, "N m", minimum=0.0)
+    env.forward_reward_weight = _number("forward_reward_weight", forward_reward_weight, "per m/s")
+    env.ctrl_cost_weight = _number("ctrl_cost_weight", ctrl_cost_weight, "per unit action^2", minimum=0.0, strict=False)
+    env.reset_noise_scale = _number("reset_noise_scale", reset_noise_scale, "rad, m/s, rad/s", minimum=0.0, strict=False)
+    if render_mode is not None and render_mode not in env.metadata["render_modes"]:
+        raise ValueError(f"render_mode must be one of {env.metadata['render_modes']} or None, got {render_mode!r}")
+    env.render_mode = render_mode
+    env.width = _number("width", width, "pixels", minimum=0, integer=True)
+    env.height = _number("height", height, "pixels", minimum=0, integer=True)
+
+
 def observation_structure(n_links: int, include_position: bool) -> dict[str, int]:
     """Sizes of the observation's blocks, in order (``skipped_*`` are not in the vector)."""
     return {
@@ -287,26 +309,14 @@ class SnakeEnv(gym.Env):
         width: int = 480,
         height: int = 480,
     ):
-        self.model, self.params, settings = build_physics(
-            n_links, sim_dt, frame_skip, mass, length, inertia, joint_damping, wheel_damping, joint_limit,
-            joint_limit_stiffness, joint_limit_damping, paper_model, exclude_current_positions_from_observation)
-        self.n_links = settings["n_links"]
-        self.paper_model = settings["paper_model"]
-        self.joint_damping = settings["joint_damping"]
-        self.wheel_damping = settings["wheel_damping"]
-        self.joint_limit = settings["joint_limit"]
-        self.frame_skip = settings["frame_skip"]
-        self.sim_dt = settings["sim_dt"]
-        self.max_torque = _number("max_torque", max_torque, "N m", minimum=0.0)
-        self.forward_reward_weight = _number("forward_reward_weight", forward_reward_weight, "per m/s")
-        self.ctrl_cost_weight = _number("ctrl_cost_weight", ctrl_cost_weight, "per unit action^2", minimum=0.0, strict=False)
-        self.reset_noise_scale = _number("reset_noise_scale", reset_noise_scale, "rad, m/s, rad/s", minimum=0.0, strict=False)
-        self.exclude_current_positions_from_observation = settings["exclude_current_positions_from_observation"]
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        self.render_mode = render_mode
-        self.width = _number("width", width, "pixels", minimum=0, integer=True)
-        self.height = _number("height", height, "pixels", minimum=0, integer=True)
+        configure(self, n_links=n_links, frame_skip=frame_skip, sim_dt=sim_dt, max_torque=max_torque,
+                  forward_reward_weight=forward_reward_weight, ctrl_cost_weight=ctrl_cost_weight,
+                  reset_noise_scale=reset_noise_scale,
+                  exclude_current_positions_from_observation=exclude_current_positions_from_observation,
+                  joint_damping=joint_damping, wheel_damping=wheel_damping, joint_limit=joint_limit,
+                  joint_limit_stiffness=joint_limit_stiffness, joint_limit_damping=joint_limit_damping,
+                  paper_model=paper_model, mass=mass, length=length, inertia=inertia,
+                  render_mode=render_mode, width=width, height=height)
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
 
         n = self.n_links

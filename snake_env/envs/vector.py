@@ -37,7 +37,7 @@ from .physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_VY, AUX_WORK, AUX_X, A
 from .snake import (DEFAULT_CTRL_COST_WEIGHT, DEFAULT_FRAME_SKIP, DEFAULT_JOINT_DAMPING, DEFAULT_JOINT_LIMIT,
                     DEFAULT_LIMIT_DAMPING, DEFAULT_LIMIT_STIFFNESS, DEFAULT_MAX_TORQUE, DEFAULT_RESET_NOISE_SCALE,
                     DEFAULT_SIM_DT, DEFAULT_WHEEL_DAMPING, RESET_INFO_KEYS, STEP_INFO_KEYS, TRAIL_LENGTH,
-                    _number, build_physics, check_actions, observation_space, observation_structure,
+                    _number, check_actions, configure, observation_space, observation_structure,
                     squared_norm)
 
 AUTORESET_MODES = {mode.value: mode for mode in AutoresetMode}
@@ -100,26 +100,14 @@ class SnakeVectorEnv(VectorEnv):
             max_episode_steps = _number("max_episode_steps", max_episode_steps, "steps, or None", minimum=0, integer=True)
         self.max_episode_steps = max_episode_steps
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
-        self.model, self.params, settings = build_physics(
-            n_links, sim_dt, frame_skip, mass, length, inertia, joint_damping, wheel_damping, joint_limit,
-            joint_limit_stiffness, joint_limit_damping, paper_model, exclude_current_positions_from_observation)
-        self.n_links = settings["n_links"]
-        self.paper_model = settings["paper_model"]
-        self.joint_damping = settings["joint_damping"]
-        self.wheel_damping = settings["wheel_damping"]
-        self.joint_limit = settings["joint_limit"]
-        self.frame_skip = settings["frame_skip"]
-        self.sim_dt = settings["sim_dt"]
-        self.exclude_current_positions_from_observation = settings["exclude_current_positions_from_observation"]
-        self.max_torque = _number("max_torque", max_torque, "N m", minimum=0.0)
-        self.forward_reward_weight = _number("forward_reward_weight", forward_reward_weight, "per m/s")
-        self.ctrl_cost_weight = _number("ctrl_cost_weight", ctrl_cost_weight, "per unit action^2", minimum=0.0, strict=False)
-        self.reset_noise_scale = _number("reset_noise_scale", reset_noise_scale, "rad, m/s, rad/s", minimum=0.0, strict=False)
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        self.render_mode = render_mode
-        self.width = _number("width", width, "pixels", minimum=0, integer=True)
-        self.height = _number("height", height, "pixels", minimum=0, integer=True)
+        configure(self, n_links=n_links, frame_skip=frame_skip, sim_dt=sim_dt, max_torque=max_torque,
+                  forward_reward_weight=forward_reward_weight, ctrl_cost_weight=ctrl_cost_weight,
+                  reset_noise_scale=reset_noise_scale,
+                  exclude_current_positions_from_observation=exclude_current_positions_from_observation,
+                  joint_damping=joint_damping, wheel_damping=wheel_damping, joint_limit=joint_limit,
+                  joint_limit_stiffness=joint_limit_stiffness, joint_limit_damping=joint_limit_damping,
+                  paper_model=paper_model, mass=mass, length=length, inertia=inertia,
+                  render_mode=render_mode, width=width, height=height)
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt)), "autoreset_mode": self.autoreset_mode}
 
         n, B = self.n_links, self.num_envs
