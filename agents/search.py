@@ -18,15 +18,15 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
+
+from snake_env.atomic import atomic_write_text
 
 from agents.serpenoid import FAMILIES, SerpenoidController, SerpenoidParams
 
@@ -214,15 +214,7 @@ def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAUL
     header = ("# Serpenoid gaits found by `python -m agents.search --env ID` (see agents/search.py).\n"
               "# params: agents.serpenoid.SerpenoidParams; velocities in m/s (CM, along x).\n")
     text = header + yaml.safe_dump(dict(sorted(data.items())), sort_keys=False)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, text)
 
 
 def main(argv=None) -> int:

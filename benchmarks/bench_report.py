@@ -10,8 +10,9 @@ from __future__ import annotations
 import os
 import platform
 import subprocess
-import tempfile
 from importlib import metadata
+
+from snake_env.atomic import atomic_write_bytes, atomic_write_text, save_figure
 
 # The issue's targets: (key, description, threshold, "ge" = at least, "lt" = below)
 TARGETS = (
@@ -286,18 +287,10 @@ def format_markdown(results: dict, plot_path: str | None = None, markdown_path: 
 # --------------------------------------------------------------------------- files
 def write_atomic(path: str, data: str | bytes) -> None:
     """Write via a temp file in the same directory, then os.replace."""
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    mode = "wb" if isinstance(data, bytes) else "w"
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=os.path.basename(path))
-    try:
-        with os.fdopen(fd, mode) as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    if isinstance(data, bytes):
+        atomic_write_bytes(path, data)
+    else:
+        atomic_write_text(path, data)
 
 
 def write_plot(results: dict, path: str) -> None:
@@ -331,15 +324,7 @@ def write_plot(results: dict, path: str) -> None:
     ax2.grid(True, which="both", alpha=0.3)
     ax2.legend(fontsize=7)
     fig.tight_layout()
-    suffix = os.path.splitext(path)[1].lstrip(".") or "png"
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix="." + suffix)
-    os.close(fd)
     try:
-        fig.savefig(tmp, format=suffix, dpi=110)
-        os.replace(tmp, path)
+        save_figure(fig, path, dpi=110)
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)

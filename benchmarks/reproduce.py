@@ -18,11 +18,13 @@ import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from snake_env.atomic import atomic_write_text
+from snake_env.atomic import save_figure as atomic_save_figure
 
 OUTPUT_FILES = ("table1.md", "fig2_cpu_time.png", "fig3_cpu_ratio.png", "fig4_precision_kane.png",
                 "fig5_precision_lagrange.png", "fig6_energy_error.png", "results.json", "report.md")
@@ -46,39 +48,12 @@ QUICK = RunConfig(cpu_ns=(2, 4, 8, 12), cpu_batches=(1, 16), cpu_min_time=0.005,
 
 
 # ---------------------------------------------------------------- atomic output
-def _file_mode() -> int:
-    """0o666 less the process umask: what open() would have given (mkstemp gives 0o600)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
 def write_text(path: str, text: str) -> None:
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=os.path.basename(path))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.chmod(tmp, _file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, text)
 
 
 def save_figure(fig, path: str) -> None:
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=110)
-        os.chmod(tmp, _file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_save_figure(fig, path, dpi=110)
 
 
 # ---------------------------------------------------------------- the four parts

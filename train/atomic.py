@@ -1,55 +1,12 @@
-"""Atomic file writes: write a temp file in the target's directory, then rename.
-
-``os.replace`` is atomic on POSIX within one file system, so a reader (or a
-crash, or Ctrl-C) never sees a half-written model, statistics or config file.
-"""
+"""Atomic saves of SB3 artefacts (model, VecNormalize statistics, replay buffer),
+on top of :mod:`snake_env.atomic`: a crash or Ctrl-C never leaves a half-written file."""
 
 from __future__ import annotations
 
-import os
-import tempfile
-from contextlib import contextmanager
-from pathlib import Path
+from snake_env.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-@contextmanager
-def atomic_path(target, suffix: str = ""):
-    """Yield a temp path beside ``target``; on success rename it onto ``target``.
-
-    ``suffix`` keeps extensions that writers insist on (SB3 appends ``.zip``
-    when a model path has no suffix).
-    """
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".tmp{suffix}", dir=target.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        # mkstemp creates 0600 files; give the result the usual umask-based mode
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
-def atomic_write_text(target, text: str) -> None:
-    with atomic_path(target) as tmp:
-        tmp.write_text(text)
-
-
-def atomic_write_bytes(target, data: bytes) -> None:
-    with atomic_path(target) as tmp:
-        tmp.write_bytes(data)
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "save_model", "save_vecnormalize",
+           "save_replay_buffer"]
 
 
 def save_model(model, target) -> None:

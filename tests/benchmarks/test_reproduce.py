@@ -8,6 +8,7 @@ import sys
 import pytest
 
 from benchmarks import reproduce
+from snake_env.atomic import _file_mode
 
 
 @pytest.fixture(scope="module")
@@ -24,9 +25,9 @@ def test_quick_run_writes_every_file(quick_run):
     for name in reproduce.OUTPUT_FILES:
         if name.endswith(".png"):
             assert (quick_run / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert not [p for p in os.listdir(quick_run) if p.startswith(".tmp-")]
+    assert not [p for p in os.listdir(quick_run) if p.startswith(".")]  # no temp file left behind
     # atomic writes keep the permissions a plain open() would give, not mkstemp's 0o600
-    assert all((quick_run / name).stat().st_mode & 0o777 == reproduce._file_mode() for name in reproduce.OUTPUT_FILES)
+    assert all((quick_run / name).stat().st_mode & 0o777 == _file_mode() for name in reproduce.OUTPUT_FILES)
 
 
 def test_report_answers_the_four_claims(quick_run):
