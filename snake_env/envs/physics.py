@@ -36,14 +36,14 @@ from snake_env.dynamics import compiled
 AUX_X, AUX_Y, AUX_VX, AUX_VY, AUX_KINETIC, AUX_WORK, AUX_FAILED = range(7)
 AUX_SIZE = 7
 # Batches with fewer than this many coordinates (B * (n+2)) are stepped on one
-# thread. Measured on the shared 2-core machine (load average ~3, lane kernel):
-# one thread steps 1.2-1.5 million Snake5 env-steps/s at every B from 64 to 4096
-# (about 0.7 us per Snake5 step, 4 us per Snake30 step), while a threaded call
-# costs a nearly constant ~8 ms under load (waiting for the second core), so
-# threads lose below ~16 ms of serial work: 2^17 coordinates, i.e. about 18,000
-# Snake5 or 4,000 Snake30 envs. On an idle machine threads would pay off much
-# earlier; RL training seldom leaves a core idle (torch, the agent).
-PARALLEL_MIN_WORK = 2 ** 17
+# thread, larger ones split across numba's threads. Measured on the 2-core
+# machine with the lane kernel: one thread steps 1.4 million Snake5 env-steps/s
+# at 1024 envs; two threads 2.2-2.3 million when the second core is idle, but a
+# threaded call waits ~8 ms for a core that another process keeps busy
+# (2-core machine at load ~3: 0.13 million). 2^12 coordinates (~600 Snake5 envs,
+# ~128 Snake30 envs) is where an idle second core starts to pay off; users who
+# share cores (several trainings at once) should call numba.set_num_threads(1).
+PARALLEL_MIN_WORK = 2 ** 12
 
 
 @dataclass(frozen=True)
