@@ -270,8 +270,9 @@ envs.reset(seed=0)
 action = np.zeros(envs.action_space.shape, dtype=envs.action_space.dtype)
 for _ in range({steps}):
     envs.step(action)
+after_steps = status_mb("VmRSS")  # read before the peak, which can only have grown since
 print(json.dumps({{"peak_rss_mb": status_mb("VmHWM"), "rss_after_imports_mb": base,
-                  "rss_after_steps_mb": status_mb("VmRSS")}}))
+                  "rss_after_steps_mb": after_steps}}))
 """
 
 
