@@ -113,3 +113,17 @@ def test_qdot_matches_finite_difference_of_positions(rng):
     theta = q[..., :n]
     v_pred = V[..., None] * np.stack([np.cos(theta), np.sin(theta)], -1)
     np.testing.assert_allclose(v_fd, v_pred, rtol=1e-7, atol=1e-8)
+
+
+def test_actuator_power_is_total_power_without_damping_and_exceeds_it_with(rng):
+    """joint_power counts the actuators only; power adds the (dissipative) damping."""
+    n = 5
+    q, u, T = random_state(rng, n, batch=(6,))
+    undamped = random_model(rng, n)
+    np.testing.assert_allclose(undamped.joint_power(q, u, T), undamped.power(q, u, T), rtol=1e-14, atol=1e-14)
+    damped = random_model(rng, n, damping=True)
+    dissipation = damped.joint_power(q, u, T) - damped.power(q, u, T)
+    assert np.all(dissipation > 0)
+    V, W = damped.link_velocities(q, u)
+    expected = np.sum(damped.joint_damping * np.diff(W, axis=-1) ** 2, -1) + np.sum(damped.wheel_damping * V**2, -1)
+    np.testing.assert_allclose(dissipation, expected, rtol=1e-12)
