@@ -238,12 +238,24 @@ def make_pruner(name: str, n_evaluations: int):
     return optuna.pruners.NopPruner()
 
 
-def make_storage(url: str, heartbeat_interval: int):
+def make_storage(url: str, heartbeat_interval: int, attempts: int = 5):
+    """Optuna's RDBStorage with heartbeats. Workers started together on an empty
+    database race to create Optuna's tables; the loser's CREATE fails on the
+    winner's objects, and a retry finds the schema in place."""
+    import random
+
     import optuna
+    import sqlalchemy
 
     engine_kwargs = {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else {"pool_pre_ping": True}
-    return optuna.storages.RDBStorage(url, engine_kwargs=engine_kwargs, heartbeat_interval=heartbeat_interval,
-                                      grace_period=2 * heartbeat_interval)
+    for attempt in range(attempts):
+        try:
+            return optuna.storages.RDBStorage(url, engine_kwargs=engine_kwargs, heartbeat_interval=heartbeat_interval,
+                                              grace_period=2 * heartbeat_interval)
+        except (sqlalchemy.exc.IntegrityError, sqlalchemy.exc.ProgrammingError, sqlalchemy.exc.OperationalError):
+            if attempt == attempts - 1:
+                raise
+            time.sleep(0.5 + random.random())
 
 
 STUDY_ATTRS = ("algo", "env_id", "n_timesteps")
@@ -264,8 +276,8 @@ def open_study(args, base: dict, url: str, study_name: str):
             stored = existing.user_attrs.get(key)
             if stored is not None and stored != base[key]:
                 flag = {"env_id": "--env", "n_timesteps": "--n-timesteps"}.get(key, f"--{key}")
-                raise UsageError(f"{flag} {base[key]!r} differs from study {study_name!r}'s {stored!r}; "
-                                 "use another --study-name")
+                raise UsageError(f"{flag} {base[key]!r} differs from the {stored!r} that study {study_name!r} was "
+                                 "created with; use the same value or another --study-name")
     n_before = len(existing.get_trials(deepcopy=False)) if existing is not None else 0
     seed = None if args.seed is None else args.seed + n_before
     study = optuna.create_study(study_name=study_name, storage=storage, direction="maximize",
