@@ -221,3 +221,32 @@ def test_bad_input_from_the_command_line(tmp_path):
     assert process.returncode == 2
     assert stderr == "snake-tune: error: --pruner must be one of ['median', 'hyperband', 'none'], got 'nope'\n"
     assert not (tmp_path / "x").exists()
+
+
+SAC_TINY = ["--algo", "sac", "--env", ENV, "--n-envs", "2", "--n-evaluations", "2",
+            "--set", "env_kwargs.max_episode_steps=50", "--set", "n_eval_episodes=1",
+            "--set", "policy_kwargs.net_arch=[8]", "--set", "learning_starts=64", "--set", "buffer_size=2000",
+            "--set", "batch_size=32"]
+
+
+@pytest.mark.parametrize("algo_args, sampler, pruner", [(SAC_TINY, "cmaes", "hyperband"), (TINY, "random", "none")],
+                         ids=["sac-cmaes-hyperband", "ppo-random-none"])
+def test_every_algo_sampler_and_pruner_runs_a_study(tmp_path, algo_args, sampler, pruner):
+    out = tmp_path / "study"
+    args = [*algo_args, "--n-timesteps", "256", "--n-trials", "2", "--out", str(out), "--sampler", sampler,
+            "--pruner", pruner, "--seed", "3"]
+    assert tune.main(args) == 0
+    algo = algo_args[1]
+    study = load(out, name=f"{algo}-Snake3-v0")
+    assert len(study.trials) == 2 and all(t.state == TrialState.COMPLETE for t in study.trials)
+    searched = set(study.trials[0].params)
+    assert "learning_rate" in searched and "net_arch" not in searched  # --set keys are not searched
+    entry = yaml.safe_load((out / "best_config.yaml").read_text())[ENV]
+    assert entry["learning_rate"] == pytest.approx(study.best_trial.params["learning_rate"])
+
+
+def test_baseline_searches_nothing(tmp_path):
+    out = tmp_path / "baseline"
+    assert tune.main(tune_args(out, 256, 1, "--baseline")) == 0
+    study = load(out)
+    assert study.trials[0].params == {} and study.trials[0].state == TrialState.COMPLETE
