@@ -55,32 +55,32 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="snake-tune",
         description="Hyperparameter search for snake-train (PPO/SAC) on Optuna; many workers may share a study.")
-    parser.add_argument("--algo", help=f"algorithm, one of {list(cfg.ALGOS)}")
-    parser.add_argument("--env", dest="env_id", help="registered env id, e.g. snake_env/Snake5-v0")
-    parser.add_argument("--n-trials", type=int, help="trials this process runs (they add to the study)")
-    parser.add_argument("--n-timesteps", type=int, help="training steps per trial (summed over envs)")
-    parser.add_argument("--n-envs", type=int, help="parallel envs per trial (default: the config entry's n_envs)")
-    parser.add_argument("--sampler", default="tpe", help=f"Optuna sampler, one of {list(SAMPLERS)} (default tpe)")
-    parser.add_argument("--pruner", default="median", help=f"Optuna pruner, one of {list(PRUNERS)} (default median)")
-    parser.add_argument("--n-evaluations", type=int, default=5,
+    parser.add_argument("--algo", metavar="{ppo,sac}", help=f"algorithm, one of {list(cfg.ALGOS)}")
+    parser.add_argument("--env", metavar="ID", dest="env_id", help="registered env id, e.g. snake_env/Snake5-v0")
+    parser.add_argument("--n-trials", metavar="N", type=int, help="trials this process runs (they add to the study)")
+    parser.add_argument("--n-timesteps", metavar="T", type=int, help="training steps per trial (summed over envs)")
+    parser.add_argument("--n-envs", metavar="K", type=int, help="parallel envs per trial (default: the config entry's n_envs)")
+    parser.add_argument("--sampler", metavar="{tpe,cmaes,random}", default="tpe", help=f"Optuna sampler, one of {list(SAMPLERS)} (default tpe)")
+    parser.add_argument("--pruner", metavar="{median,hyperband,none}", default="median", help=f"Optuna pruner, one of {list(PRUNERS)} (default median)")
+    parser.add_argument("--n-evaluations", metavar="E", type=int, default=5,
                         help="evaluations (reports to the pruner) per trial, evenly spaced (default 5)")
-    parser.add_argument("--storage", help="SQLAlchemy URL of the study (default sqlite:///DIR/study.db), "
+    parser.add_argument("--storage", metavar="URL", help="SQLAlchemy URL of the study (default sqlite:///DIR/study.db), "
                                           "e.g. postgresql+psycopg://user@host:5432/db")
-    parser.add_argument("--study-name", help="study name (default <algo>-<env name>, e.g. ppo-Snake5-v0)")
-    parser.add_argument("--seed", type=int, help="training seed of every trial (default the entry's or 0); "
+    parser.add_argument("--study-name", metavar="NAME", help="study name (default <algo>-<env name>, e.g. ppo-Snake5-v0)")
+    parser.add_argument("--seed", metavar="S", type=int, help="training seed of every trial (default the entry's or 0); "
                                                   "also seeds the sampler (give workers of one study different seeds)")
-    parser.add_argument("--timeout", type=float, help="stop starting trials after this many seconds")
-    parser.add_argument("--out", help="output directory: best_config.yaml, study.csv, plots (and study.db)")
-    parser.add_argument("--config", help="YAML keyed by env id whose entry every trial starts from "
+    parser.add_argument("--timeout", metavar="SECONDS", type=float, help="stop starting trials after this many seconds")
+    parser.add_argument("--out", metavar="DIR", help="output directory: best_config.yaml, study.csv, plots (and study.db)")
+    parser.add_argument("--config", metavar="YAML", help="YAML keyed by env id whose entry every trial starts from "
                                          "(default configs/<algo>.yaml; an env without an entry starts from defaults)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="fix a config key (as in snake-train); a fixed key is not searched; repeatable")
     parser.add_argument("--baseline", action="store_true",
                         help="search nothing: every trial runs the config entry as is (a reference value)")
-    parser.add_argument("--heartbeat-interval", type=int, default=60,
+    parser.add_argument("--heartbeat-interval", metavar="SECONDS", type=int, default=60,
                         help="seconds between a running trial's heartbeats; a trial silent for twice this is "
                              "failed by the next worker to start a trial (default 60)")
-    parser.add_argument("--verbose", type=int, default=0, help="0: a line per trial; 1: also Optuna's log")
+    parser.add_argument("--verbose", metavar="{0,1}", type=int, default=0, help="0: a line per trial; 1: also Optuna's log")
     return parser
 
 
