@@ -62,7 +62,7 @@ def _one_minus(value: float) -> float:
 SPACES: dict[str, tuple[Dimension, ...]] = {
     "ppo": (
         Dimension("n_steps", "n_steps", "categorical", choices=(32, 64, 128, 256, 512)),  # per env
-        Dimension("batch_size", "batch_size", "categorical", choices=(64, 128, 256, 512, 1024, 2048)),
+        Dimension("batch_size", "batch_size", "categorical", choices=(256, 512, 1024, 2048)),
         Dimension("n_epochs", "n_epochs", "categorical", choices=(1, 5, 10, 20)),
         Dimension("one_minus_gamma", "gamma", "float", 1e-4, 0.05, log=True, to_config=_one_minus),
         Dimension("one_minus_gae_lambda", "gae_lambda", "float", 1e-3, 0.1, log=True, to_config=_one_minus),
