@@ -12,7 +12,7 @@ call per step for all sub-envs, instead of SB3's ``DummyVecEnv`` loop over
 Usage::
 
     from agents.sb3_vec_env import SnakeSB3VecEnv
-    venv = SnakeSB3VecEnv("snake_env/Snake5-v0", num_envs=16, ctrl_cost_weight=1e-4)
+    venv = SnakeSB3VecEnv("snake_env/Snake5-v1", num_envs=16, ctrl_cost_weight=1e-4)
     venv = VecMonitor(venv)          # episode returns/lengths in infos["episode"]
     venv = VecNormalize(venv)        # save its statistics with the model
 """
@@ -36,7 +36,7 @@ class SnakeSB3VecEnv(VecEnv):
     """SB3 ``VecEnv`` of ``num_envs`` snakes stepped together.
 
     Args:
-        env: a registered id (e.g. ``"snake_env/Snake5-v0"``), built with
+        env: a registered id (e.g. ``"snake_env/Snake5-v1"``), built with
             ``gym.make_vec(env, num_envs, vectorization_mode="vector_entry_point",
             autoreset_mode="SameStep", **env_kwargs)``; or an existing
             :class:`SnakeVectorEnv` created with ``autoreset_mode="SameStep"``.

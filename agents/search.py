@@ -11,7 +11,7 @@ are re-scored on many full-length episodes and the best mean is written to ``con
 Score: mean forward speed of the snake's centre of mass, the mean of the
 env's ``info["x_velocity"]`` (m/s) over the episode, i.e. x displacement / time.
 
-    python -m agents.search --env snake_env/Snake5-v0
+    python -m agents.search --env snake_env/Snake5-v1
 """
 
 from __future__ import annotations
@@ -219,7 +219,7 @@ def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAUL
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m agents.search", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", dest="env_id", required=True, help="gymnasium env id, e.g. snake_env/Snake5-v0")
+    parser.add_argument("--env", dest="env_id", required=True, help="gymnasium env id, e.g. snake_env/Snake5-v1")
     parser.add_argument("--families", nargs="+", default=list(FAMILIES), help=f"subset of {list(FAMILIES)}")
     parser.add_argument("--population", type=int, default=192)
     parser.add_argument("--generations", type=int, default=10)

@@ -1,8 +1,8 @@
 """snake_env: a Gymnasium testbed for n-link wheeled snake robots.
 
 Importing the package registers the environments (this module does nothing
-else): ``snake_env/Snake-v0`` (kwarg ``n_links``, default 5) and
-``snake_env/Snake{n}-v0`` for n in 3, 5, 8, 12, 20, 30.
+else): ``snake_env/Snake-v1`` (kwarg ``n_links``, default 5) and
+``snake_env/Snake{n}-v1`` for n in 3, 5, 8, 12, 20, 30.
 """
 
 from snake_env.registration import register_envs

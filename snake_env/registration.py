@@ -9,11 +9,15 @@ VECTOR_ENTRY_POINT = "snake_env.envs.vector:SnakeVectorEnv"
 
 
 def register_envs() -> None:
-    """Register every snake id once; safe to call repeatedly."""
+    """Register every snake id once; safe to call repeatedly.
+
+    Only -v1 is registered: v1 changed the joint limit (a barrier scaled with
+    max_torque) and the integration (checked RK4 with refinement), so v0's
+    behaviour for the same seed and actions is not reproduced by any setting."""
     from gymnasium.envs.registration import register, registry
 
-    ids = {"snake_env/Snake-v0": {}}
-    ids.update({f"snake_env/Snake{n}-v0": {"n_links": n} for n in REGISTERED_N_LINKS})
+    ids = {"snake_env/Snake-v1": {}}
+    ids.update({f"snake_env/Snake{n}-v1": {"n_links": n} for n in REGISTERED_N_LINKS})
     for env_id, kwargs in ids.items():
         if env_id in registry:
             continue

@@ -2,9 +2,9 @@
 
 Examples::
 
-    snake-eval runs/Snake5-v0__ppo__s0__20260101-120000 --episodes 5 --json eval.json
+    snake-eval runs/Snake5-v1__ppo__s0__20260101-120000 --episodes 5 --json eval.json
     snake-eval runs/.../checkpoints/model_200000_steps.zip --plot cm.png --video snake.gif
-    snake-eval --baseline serpenoid --env snake_env/Snake5-v0 --json serpenoid.json
+    snake-eval --baseline serpenoid --env snake_env/Snake5-v1 --json serpenoid.json
 
 The env id, env kwargs and VecNormalize statistics come from the run's
 ``config.yaml`` and the statistics file saved beside the model; the

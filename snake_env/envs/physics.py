@@ -12,11 +12,38 @@ the vector env.
 
 The integrator is the compiled RK4 lane kernel of
 :mod:`snake_env.dynamics.compiled` (the O(n) Kane sweep of eqs. 6-21 plus
-damping and soft joint limits). Around it this module adds what the RL
+damping and the joint-limit barrier). Around it this module adds what the RL
 interface needs: the mass-weighted centre of mass of the whole snake (whose
 finite difference over one env step is the reward's velocity), the
-observation vector, the kinetic energy (eq. 22 under the constraints) and a
-non-finite guard that restores the pre-step state instead of returning NaN.
+observation vector, the kinetic energy (eq. 22 under the constraints) and the
+step check below.
+
+Checked integration (no silent blow-ups). Every env step is checked on the
+state it produced; a step passes when
+  * every coordinate, speed, the work and the kinetic energy are finite;
+  * the embedded error estimate of every RK4 substep is within error_tolerance:
+    RK4 with the FSAL stage k5 = f(y_{n+1}) carries a third-order solution
+    (weights 1/6, 1/3, 1/3, 0, 1/6) whose difference to RK4's, dt/6 |k4 - k5|,
+    estimates the local error; it must be <= error_tolerance * 1 rad for every
+    theta_k, error_tolerance * (|V_1| + h_1 * 1 rad/s) for V_1 and
+    error_tolerance * (|thetadot_1| + 1 rad/s) for thetadot_1 (one derivative
+    more per env step: k5 of a substep is the next one's k1);
+  * the work-energy balance holds: |K1 - K0 - W| <= energy_tolerance *
+    (max(K0, K1) + energy_floor), K the kinetic energy (J) before and after,
+    W the work of all loads over the step (J) (K - integral of power is
+    conserved by the continuous model, so the residual is integration error);
+  * no link or joint turns by more than MAX_SUBSTEP_ANGLE (rad) in one RK4
+    substep (max |omega_k|, |phidot_k| times the substep, after the step): a
+    faster state is not resolved by the step (a runaway);
+  * no wrapped joint angle reaches compiled.FOLD_ANGLE (adjacent links folded
+    onto each other: no contact in the model, not physical).
+A snake whose step fails is integrated again from its pre-step state by the
+per-snake kernel with the substep halved, up to ``max_refinements`` times
+(only that snake: the others keep their lane result). If the finest step
+still fails, the step is a simulation failure: the pre-step state is kept
+(its observation is returned again, velocity and work 0) and aux[AUX_FAILED]
+holds the reason code (FAIL_*). The result of a snake still does not depend
+on the batch it is in.
 A snake whose link angles exceed ``compiled.LANE_ANGLE_MAX`` (1e5 rad, only
 after thousands of turns) is stepped by the per-snake kernel
 (:func:`_step_one`, libm sin/cos) instead.
@@ -32,9 +59,22 @@ from numba import njit, prange
 
 from snake_env.dynamics import compiled
 
-# Layout of the per-snake auxiliary output row (float64).
-AUX_X, AUX_Y, AUX_VX, AUX_VY, AUX_KINETIC, AUX_WORK, AUX_FAILED = range(7)
-AUX_SIZE = 7
+# Layout of the per-snake auxiliary output row (float64). AUX_FAILED is 0.0 or
+# a FAIL_* reason code; AUX_REFINEMENTS the substep halvings the step needed;
+# AUX_RESIDUAL its relative work-energy residual |K1 - K0 - W| / (max(K0, K1) + floor).
+AUX_X, AUX_Y, AUX_VX, AUX_VY, AUX_KINETIC, AUX_WORK, AUX_FAILED, AUX_REFINEMENTS, AUX_RESIDUAL = range(9)
+AUX_SIZE = 9
+# Reasons a step fails (aux[AUX_FAILED]); the check order is this order.
+FAIL_NONFINITE, FAIL_ENERGY, FAIL_RUNAWAY, FAIL_FOLD, FAIL_ERROR = 1, 2, 3, 4, 5
+FAILURE_REASONS = {FAIL_NONFINITE: "non-finite state", FAIL_ERROR: "error estimate above error_tolerance",
+                   FAIL_ENERGY: "work-energy residual above energy_tolerance",
+                   FAIL_RUNAWAY: "runaway: a link or joint turns more than MAX_SUBSTEP_ANGLE per RK4 substep",
+                   FAIL_FOLD: "adjacent links folded (|phi_k| reached FOLD_ANGLE)"}
+# rad: the most a link or joint may turn in one RK4 substep. RK4's error on a
+# rotation by a per step is ~a^5/120 (1% at 1 rad); faster states are refined,
+# and at the finest substep they are a runaway.
+MAX_SUBSTEP_ANGLE = 1.0
+FOLD_ANGLE = compiled.FOLD_ANGLE
 # Batches with fewer than this many coordinates (B * (n+2)) are stepped on one
 # thread, larger ones split across numba's threads. Measured on the 2-core
 # machine with the lane kernel: one thread steps 1.4 million Snake5 env-steps/s
@@ -59,6 +99,11 @@ class PhysicsParams:
             acting beyond the limit.
         sim_dt: RK4 step (s); frame_skip: RK4 steps per env step.
         include_position: whether the observation starts with the CM position (x, y).
+        energy_tolerance: largest relative work-energy residual of a step (see the module doc).
+        energy_floor (J): added to max(K0, K1) in that test, so a snake at rest is not held to
+            a relative tolerance of its tiny energy.
+        error_tolerance: tolerance of the embedded error estimate (see the module doc); inf: not checked.
+        max_refinements: substep halvings tried on a failing step (0: a failing step fails).
     """
 
     mass: np.ndarray
@@ -72,6 +117,10 @@ class PhysicsParams:
     sim_dt: float
     frame_skip: int
     include_position: bool
+    energy_tolerance: float = 1e-2
+    energy_floor: float = 1e-3
+    error_tolerance: float = 1e-3
+    max_refinements: int = 6
 
     @property
     def n_links(self) -> int:
@@ -172,32 +221,101 @@ def _observe(m, h, inertia, q, u, include_position, cx, cy, obs):
 
 
 @njit(cache=True, nogil=True)
-def _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-              q, u, torques, obs, aux):
-    """Advance one snake in place by frame_skip RK4 steps; fill obs and aux.
+def _measures(m, h, inertia, q, u):
+    """(kinetic energy (J), fastest rate (rad/s), largest wrapped |phi_k| (rad)) of one state:
+    the quantities of the step check. Rates are every link's omega_k and joint's phidot_k (eqs. 6-7)."""
+    n = m.shape[0]
+    V = u[0]
+    W = u[1]
+    kinetic = 0.5 * (m[0] * V * V + inertia[0] * W * W)
+    rate = abs(W)
+    fold = 0.0
+    for k in range(n - 1):
+        phi = q[k + 1] - q[k]
+        S, C = _sincos(phi)
+        nV = V * C + W * h[k] * S  # eq. 6
+        nW = (V * S - W * h[k] * C) / h[k + 1]  # eq. 7
+        rate = max(rate, abs(nW), abs(nW - W))
+        fold = max(fold, abs(_wrap(phi)))
+        V = nV
+        W = nW
+        kinetic += 0.5 * (m[k + 1] * V * V + inertia[k + 1] * W * W)
+    return kinetic, rate, fold
 
-    A step whose result is not finite is undone (q, u keep their pre-step
-    values) and flagged in aux[AUX_FAILED], so no NaN ever leaves the kernel.
-    """
-    nq = q.shape[0]
-    cx0, cy0 = _center_of_mass(m, h, q)
-    q_before = q.copy()
-    u_before = u.copy()
-    work = compiled.rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, sim_dt, frame_skip)
-    finite = math.isfinite(work) and math.isfinite(u[0]) and math.isfinite(u[1])
-    for j in range(nq):
-        finite = finite and math.isfinite(q[j])
-    if finite:
-        cx, cy = _center_of_mass(m, h, q)
-        finite = math.isfinite(cx) and math.isfinite(cy)
+
+@njit(cache=True, nogil=True, inline="always")
+def _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, tol, e_floor):
+    """(FAIL_* code or 0, relative work-energy residual) of a step; see the module doc.
+    ``err``: the error estimate over the tolerance. Comparisons are written so that NaN fails them."""
     if not finite:
+        return FAIL_NONFINITE, math.inf
+    if not err <= 1.0:
+        return FAIL_ERROR, math.inf
+    residual = abs(k1 - k0 - work) / (max(k0, k1) + e_floor)
+    if not residual <= tol:
+        return FAIL_ENERGY, residual
+    if not rate * dt_sub <= MAX_SUBSTEP_ANGLE:
+        return FAIL_RUNAWAY, residual
+    if not fold < FOLD_ANGLE:
+        return FAIL_FOLD, residual
+    return 0, residual
+
+
+@njit(cache=True, nogil=True)
+def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, tol, e_floor,
+                       err_tol, r_first, r_last, q0, u0, torques, k0, q, u):
+    """One env step of one snake from (q0, u0) (kinetic energy k0) by the per-snake RK4
+    kernel, with substeps sim_dt / 2^r for r = r_first, ..., r_last until one passes the
+    check. Returns (code, work (J), r, residual); (q, u) hold the accepted state, or
+    (q0, u0) when every attempt failed (code != 0, work 0)."""
+    nq = q.shape[0]
+    code = FAIL_NONFINITE
+    residual = math.inf
+    for r in range(r_first, r_last + 1):
         for j in range(nq):
-            q[j] = q_before[j]
-        u[0] = u_before[0]
-        u[1] = u_before[1]
-        cx = cx0
-        cy = cy0
-        work = 0.0
+            q[j] = q0[j]
+        u[0] = u0[0]
+        u[1] = u0[1]
+        sub = 1 << r
+        dt_sub = sim_dt / sub
+        work, err = compiled.rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques,
+                                               dt_sub, frame_skip * sub, err_tol, h[0])
+        finite = math.isfinite(work) and math.isfinite(u[0]) and math.isfinite(u[1])
+        for j in range(nq):
+            finite = finite and math.isfinite(q[j])
+        k1 = math.nan
+        rate = math.nan
+        fold = math.nan
+        if finite:
+            k1, rate, fold = _measures(m, h, inertia, q, u)
+            finite = math.isfinite(k1)
+        code, residual = _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, tol, e_floor)
+        if code == 0:
+            return 0, work, r, residual
+    for j in range(nq):
+        q[j] = q0[j]
+    u[0] = u0[0]
+    u[1] = u0[1]
+    return code, 0.0, r_last, residual
+
+
+@njit(cache=True, nogil=True)
+def _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
+              tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
+    """Advance one snake in place by one checked env step (see the module doc); fill obs and aux.
+
+    A step that fails at the finest substep is undone (q, u keep their
+    pre-step values) and its reason put in aux[AUX_FAILED], so no NaN or
+    runaway ever leaves the kernel.
+    """
+    cx0, cy0 = _center_of_mass(m, h, q)
+    k0, _, _ = _measures(m, h, inertia, q, u)
+    q0 = q.copy()
+    u0 = u.copy()
+    code, work, r, residual = _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt,
+                                                 frame_skip, tol, e_floor, err_tol, 0, max_ref, q0, u0, torques, k0,
+                                                 q, u)
+    cx, cy = _center_of_mass(m, h, q)
     env_dt = sim_dt * frame_skip
     aux[AUX_X] = cx
     aux[AUX_Y] = cy
@@ -205,7 +323,9 @@ def _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, 
     aux[AUX_VY] = (cy - cy0) / env_dt
     aux[AUX_KINETIC] = _observe(m, h, inertia, q, u, include_position, cx, cy, obs)
     aux[AUX_WORK] = work
-    aux[AUX_FAILED] = 0.0 if finite else 1.0
+    aux[AUX_FAILED] = code
+    aux[AUX_REFINEMENTS] = r
+    aux[AUX_RESIDUAL] = residual
 
 
 # --------------------------------------------------------------------------- lane kernels
@@ -214,8 +334,10 @@ def _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, 
 # vectorise (see the notes there). Rows used here besides the integrator's:
 _U = np.uint64
 _LANES = compiled.LANES
-_H_CX0, _H_CY0, _H_CX, _H_CY, _H_KINETIC, _H_COS1, _H_SIN1 = (
-    _U((compiled.H_FREE + i) * _LANES) for i in range(7))
+# (the check's pre-step kinetic energy, fastest rate and largest |phi| too)
+_H_CX0, _H_CY0, _H_CX, _H_CY, _H_KINETIC, _H_COS1, _H_SIN1, _H_K0, _H_RATE, _H_FOLD = (
+    _U((compiled.H_FREE + i) * _LANES) for i in range(10))
+assert compiled.H_FREE + 10 <= compiled.N_HEADER
 # per link k: cos, sin of theta_k (CM sweep); observed joint angle and rate of joint k
 _B_COS, _B_SIN, _B_PHI, _B_PHIDOT = (_U((compiled.B_FREE + i) * _LANES) for i in range(4))
 # running sums of the CM and kinetic-energy sweeps, in the integrator's channel
@@ -223,8 +345,9 @@ _B_COS, _B_SIN, _B_PHI, _B_PHIDOT = (_U((compiled.B_FREE + i) * _LANES) for i in
 _B_PX, _B_PY, _B_SX, _B_SY = (_U(row * _LANES) for row in (compiled.B_A1, compiled.B_A2, compiled.B_B1, compiled.B_B2))
 _B_V, _B_W, _B_K = (_U(row * _LANES) for row in (compiled.B_V, compiled.B_W, compiled.B_M00))
 _B_Q = _U(compiled.B_Q * _LANES)
-_H_X, _H_Y, _H_U0, _H_U1, _H_WORK = (
-    _U(row * _LANES) for row in (compiled.H_X, compiled.H_Y, compiled.H_U0, compiled.H_U1, compiled.H_WORK))
+_H_X, _H_Y, _H_U0, _H_U1, _H_WORK, _H_ERR = (
+    _U(row * _LANES) for row in (compiled.H_X, compiled.H_Y, compiled.H_U0, compiled.H_U1, compiled.H_WORK,
+                                 compiled.H_ERR))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -271,7 +394,8 @@ def _center_of_mass_lanes(m, h, total_mass, s, nl, row_x, row_y):
 def _observe_lanes(m, h, inertia, s, nl):
     """The parts of :func:`_observe` that need a sweep, for lanes 0..nl-1 (state
     rows Q, U): joint angles wrapped to (-pi, pi] and joint rates (per-link rows),
-    cos/sin of theta_1 and the kinetic energy (J) (header rows)."""
+    cos/sin of theta_1, the kinetic energy (J) and the check's fastest rate (rad/s)
+    and largest |phi_k| (rad) of :func:`_measures` (header rows)."""
     n = m.shape[0]
     lanes = _U(nl)
     b0 = compiled.lane_block(0)
@@ -281,6 +405,8 @@ def _observe_lanes(m, h, inertia, s, nl):
         s[b0 + _B_V + l] = V
         s[b0 + _B_W + l] = W
         s[b0 + _B_K + l] = 0.5 * (m[0] * V * V + inertia[0] * W * W)
+        s[_H_RATE + l] = abs(W)
+        s[_H_FOLD + l] = 0.0
         sn, cs = compiled.sincos(s[b0 + _B_Q + l])
         s[_H_COS1 + l] = cs
         s[_H_SIN1 + l] = sn
@@ -298,49 +424,86 @@ def _observe_lanes(m, h, inertia, s, nl):
             W = s[o + _B_W + l]
             nV = V * C + W * hk * S  # eq. 6
             nW = (V * S - W * hk * C) / hn  # eq. 7
-            s[o + _B_PHI + l] = compiled.wrap_angle(phi)
+            wrapped = compiled.wrap_angle(phi)
+            s[o + _B_PHI + l] = wrapped
             s[o + _B_PHIDOT + l] = nW - W
             s[p + _B_V + l] = nV
             s[p + _B_W + l] = nW
             s[p + _B_K + l] = s[o + _B_K + l] + 0.5 * (mn * nV * nV + In * nW * nW)
+            s[_H_RATE + l] = max(s[_H_RATE + l], abs(nW), abs(nW - W))
+            s[_H_FOLD + l] = max(s[_H_FOLD + l], abs(wrapped))
     o = compiled.lane_block(n - 1)
     for l in range(lanes):
         s[_H_KINETIC + l] = s[o + _B_K + l]
 
 
 @njit(cache=True, nogil=True)
+def _load_lane(s, lane, q, u, work):
+    """Put one snake's state (q (n+2,), u (2,)) and work (J) into lane ``lane`` of the scratch."""
+    n = q.shape[0] - 2
+    for k in range(n):
+        s[compiled.lane_block(k) + _B_Q + lane] = q[k]
+    s[_H_X + lane] = q[n]
+    s[_H_Y + lane] = q[n + 1]
+    s[_H_U0 + lane] = u[0]
+    s[_H_U1 + lane] = u[1]
+    s[_H_WORK + lane] = work
+
+
+@njit(cache=True, nogil=True)
 def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                     total_mass, q, u, torques, obs, aux, index, start, nl, s):
-    """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES), in lanes."""
+                     tol, e_floor, err_tol, max_ref, total_mass, q, u, torques, obs, aux, index, start, nl, s):
+    """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES): the
+    first attempt in lanes, refinements of failing snakes by the per-snake kernel."""
     n = m.shape[0]
     compiled.load_lanes(s, q, u, torques, index, start, nl)
+    _observe_lanes(m, h, inertia, s, nl)  # the pre-step kinetic energy
+    for l in range(nl):
+        lane = _U(l)
+        s[_H_K0 + lane] = s[_H_KINETIC + lane]
     _center_of_mass_lanes(m, h, total_mass, s, nl, _H_CX0, _H_CY0)
-    compiled.rk4_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, sim_dt, frame_skip)
-    _center_of_mass_lanes(m, h, total_mass, s, nl, _H_CX, _H_CY)
-    # non-finite guard, as in _step_one: a failed snake keeps its pre-step state
-    # (still in q, u: they are written back only below)
-    failed = np.zeros(nl, np.bool_)
+    compiled.rk4_lanes_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, sim_dt, frame_skip,
+                                err_tol, h[0])
+    _observe_lanes(m, h, inertia, s, nl)
+    # the step check; the pre-step state of each snake is still in q, u (written back only below)
+    codes = np.zeros(nl, np.int64)
+    refinements = np.zeros(nl, np.int64)
+    residuals = np.zeros(nl)
+    redo = False
+    q1 = np.empty(n + 2)
+    u1 = np.empty(2)
     for l in range(nl):
         lane = _U(l)
         finite = (math.isfinite(s[_H_WORK + lane]) and math.isfinite(s[_H_U0 + lane])
                   and math.isfinite(s[_H_U1 + lane]) and math.isfinite(s[_H_X + lane])
-                  and math.isfinite(s[_H_Y + lane]))
+                  and math.isfinite(s[_H_Y + lane]) and math.isfinite(s[_H_KINETIC + lane]))
         for k in range(n):
             finite = finite and math.isfinite(s[compiled.lane_block(k) + _B_Q + lane])
-        finite = finite and math.isfinite(s[_H_CX + lane]) and math.isfinite(s[_H_CY + lane])
-        if not finite:
-            failed[l] = True
-            b = index[start + l]
-            for k in range(n):
-                s[compiled.lane_block(k) + _B_Q + lane] = q[b, k]
-            s[_H_X + lane] = q[b, n]
-            s[_H_Y + lane] = q[b, n + 1]
-            s[_H_U0 + lane] = u[b, 0]
-            s[_H_U1 + lane] = u[b, 1]
-            s[_H_CX + lane] = s[_H_CX0 + lane]
-            s[_H_CY + lane] = s[_H_CY0 + lane]
-            s[_H_WORK + lane] = 0.0
-    _observe_lanes(m, h, inertia, s, nl)
+        k0 = s[_H_K0 + lane]
+        code, residual = _verdict(finite, s[_H_ERR + lane], k0, s[_H_KINETIC + lane], s[_H_WORK + lane],
+                                  s[_H_RATE + lane], s[_H_FOLD + lane], sim_dt, tol, e_floor)
+        if code == 0:
+            residuals[l] = residual
+            continue
+        b = index[start + l]
+        work = 0.0
+        r = 0
+        if max_ref > 0:
+            code, work, r, residual = _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
+                                                         sim_dt, frame_skip, tol, e_floor, err_tol, 1, max_ref, q[b],
+                                                         u[b], torques[b], k0, q1, u1)
+        else:
+            q1[:] = q[b]
+            u1[:] = u[b]
+        # the accepted refined state, or the pre-step state of a failed step
+        _load_lane(s, lane, q1, u1, work)
+        codes[l] = code
+        refinements[l] = r
+        residuals[l] = residual
+        redo = True
+    if redo:
+        _observe_lanes(m, h, inertia, s, nl)
+    _center_of_mass_lanes(m, h, total_mass, s, nl, _H_CX, _H_CY)
     env_dt = sim_dt * frame_skip
     for l in range(nl):
         lane = _U(l)
@@ -374,7 +537,9 @@ def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s
         aux[b, AUX_VY] = (cy - s[_H_CY0 + lane]) / env_dt
         aux[b, AUX_KINETIC] = s[_H_KINETIC + lane]
         aux[b, AUX_WORK] = s[_H_WORK + lane]
-        aux[b, AUX_FAILED] = 1.0 if failed[l] else 0.0
+        aux[b, AUX_FAILED] = codes[l]
+        aux[b, AUX_REFINEMENTS] = refinements[l]
+        aux[b, AUX_RESIDUAL] = residuals[l]
 
 
 @njit(cache=True, nogil=True)
@@ -387,48 +552,49 @@ def _total_mass(m):
 
 @njit(cache=True, nogil=True)
 def _step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                q, u, torques, obs, aux):
+                tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
     """Step B snakes on one thread: lane groups of compiled.LANES, and
     :func:`_step_one` for the rare snake whose angles exceed the lanes' sin/cos range."""
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
         _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                  q[b], u[b], torques[b], obs[b], aux[b])
+                  tol, e_floor, err_tol, max_ref, q[b], u[b], torques[b], obs[b], aux[b])
     s = np.empty(compiled.lanes_scratch_size(m.shape[0]))
     total_mass = _total_mass(m)
     for start in range(0, count, _LANES):
         _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
-                         include_position, total_mass, q, u, torques, obs, aux, index, start,
+                         include_position, tol, e_floor, err_tol, max_ref, total_mass, q, u, torques, obs, aux, index, start,
                          min(_LANES, count - start), s)
 
 
 @njit(cache=True, parallel=True)
 def _step_lanes_parallel(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
-                         include_position, q, u, torques, obs, aux):
+                         include_position, tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
     """:func:`_step_lanes` with the lane groups spread over threads."""
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
         _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                  q[b], u[b], torques[b], obs[b], aux[b])
+                  tol, e_floor, err_tol, max_ref, q[b], u[b], torques[b], obs[b], aux[b])
     size = compiled.lanes_scratch_size(m.shape[0])
     total_mass = _total_mass(m)
     for group in prange((count + _LANES - 1) // _LANES):
         start = group * _LANES
         s = np.empty(size)
         _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
-                         include_position, total_mass, q, u, torques, obs, aux, index, start,
+                         include_position, tol, e_floor, err_tol, max_ref, total_mass, q, u, torques, obs, aux, index, start,
                          min(_LANES, count - start), s)
 
 
 @njit(cache=True, nogil=True)
 def _step_lanes_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                    q, u, torques, obs, aux):
+                    tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
     """One snake (1-D arrays) through the lane kernel, so it equals any row of a batch bit for bit."""
     _step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                q.reshape((1, q.shape[0])), u.reshape((1, 2)), torques.reshape((1, torques.shape[0])),
-                obs.reshape((1, obs.shape[0])), aux.reshape((1, aux.shape[0])))
+                tol, e_floor, err_tol, max_ref, q.reshape((1, q.shape[0])), u.reshape((1, 2)),
+                torques.reshape((1, torques.shape[0])), obs.reshape((1, obs.shape[0])),
+                aux.reshape((1, aux.shape[0])))
 
 
 @njit(cache=True, nogil=True)
@@ -453,6 +619,8 @@ def _reset_one(m, h, inertia, include_position, noise, q, u, obs, aux):
     aux[AUX_KINETIC] = _observe(m, h, inertia, q, u, include_position, cx, cy, obs)
     aux[AUX_WORK] = 0.0
     aux[AUX_FAILED] = 0.0
+    aux[AUX_REFINEMENTS] = 0.0
+    aux[AUX_RESIDUAL] = 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -472,6 +640,8 @@ def _observe_batch(m, h, inertia, include_position, q, u, obs, aux):
         aux[b, AUX_KINETIC] = _observe(m, h, inertia, q[b], u[b], include_position, cx, cy, obs[b])
         aux[b, AUX_WORK] = 0.0
         aux[b, AUX_FAILED] = 0.0
+        aux[b, AUX_REFINEMENTS] = 0.0
+        aux[b, AUX_RESIDUAL] = 0.0
 
 
 # --------------------------------------------------------------------------- pure API
@@ -498,7 +668,8 @@ def step(params: PhysicsParams, q, u, torques):
 
     Returns (q_next, u_next, obs, aux); aux columns are AUX_* (CM position (m),
     CM velocity over the step (m/s), kinetic energy (J), work of all loads (J),
-    failed flag). Inputs are not modified.
+    failure code (0 or FAIL_*), substep halvings used, relative work-energy
+    residual). A failed snake keeps its input state. Inputs are not modified.
     """
     q, u = _as_state(params, q, u)
     torques = np.ascontiguousarray(torques, dtype=np.float64)
@@ -508,7 +679,9 @@ def step(params: PhysicsParams, q, u, torques):
     kernel = _kernel(q)
     kernel(params.mass, params.half_length, params.inertia, params.joint_damping, params.wheel_damping,
            params.joint_limit, params.limit_stiffness, params.limit_damping, params.sim_dt, params.frame_skip,
-           params.include_position, q, u, torques, obs, aux)
+           params.include_position, params.energy_tolerance, params.energy_floor, params.error_tolerance,
+           params.max_refinements,
+           q, u, torques, obs, aux)
     return q, u, obs, aux
 
 
@@ -524,7 +697,9 @@ def step_inplace(params: PhysicsParams, q, u, torques, obs, aux):
     kernel = _kernel(q)
     kernel(params.mass, params.half_length, params.inertia, params.joint_damping, params.wheel_damping,
            params.joint_limit, params.limit_stiffness, params.limit_damping, params.sim_dt, params.frame_skip,
-           params.include_position, q, u, torques, obs, aux)
+           params.include_position, params.energy_tolerance, params.energy_floor, params.error_tolerance,
+           params.max_refinements,
+           q, u, torques, obs, aux)
 
 
 def reset(params: PhysicsParams, noise):

@@ -24,13 +24,29 @@ DEFAULT_FRAME_SKIP = 4  # RK4 steps per env step
 DEFAULT_MAX_TORQUE = 1.0  # N m, the paper's Table III torque amplitude
 DEFAULT_JOINT_DAMPING = 0.01  # N m s/rad, viscous joint friction
 DEFAULT_WHEEL_DAMPING = 0.1  # N s/m per wheel, rolling resistance
-DEFAULT_JOINT_LIMIT = math.pi / 2  # rad, soft limit on |phi_k|
-DEFAULT_LIMIT_STIFFNESS = 20.0  # N m/rad, spring beyond the limit
-DEFAULT_LIMIT_DAMPING = 0.2  # N m s/rad, damper beyond the limit
+DEFAULT_JOINT_LIMIT = math.pi / 2  # rad, limit on |phi_k|
+DEFAULT_LIMIT_STIFFNESS = 20.0  # N m/rad, least stiffness of the barrier beyond the limit
+DEFAULT_LIMIT_DAMPING = 0.2  # N m s/rad, damper beyond the limit (at the least stiffness)
 # With the joint's effective inertia I_eff ~ 0.015 kg m^2 (n = 5, paper links) the limit
 # rings at sqrt(k / I_eff) ~ 36 rad/s (omega dt = 0.36 per RK4 step) with damping ratio
 # ~0.2. A larger damper switches on a larger force jump c * phidot at the limit, which
 # RK4 resolves poorly at sim_dt = 0.01 s (measured energy-balance error grows ~15x at c = 1).
+# The barrier's stiffness k = max(joint_limit_stiffness, LIMIT_STIFFNESS_PER_TORQUE * max_torque)
+# (N m/rad): at k d = max_torque the joint is pushed 0.1 rad past the limit, and the
+# barrier's potential diverges before the fold, so it wins against any torque. Its damper
+# is scaled by sqrt(k / joint_limit_stiffness) so the damping ratio stays that of the kwargs.
+LIMIT_STIFFNESS_PER_TORQUE = 10.0  # 1/rad
+MAX_JOINT_LIMIT = math.radians(150.0)  # rad: leaves >= 20 deg of barrier before the fold (170 deg)
+INTEGRATORS = ("rk4_refined", "rk4")
+DEFAULT_INTEGRATOR = "rk4_refined"
+DEFAULT_ENERGY_TOLERANCE = 1e-2  # relative work-energy residual per env step
+DEFAULT_ERROR_TOLERANCE = 1e-3  # embedded RK4(3) estimate per substep, relative (see physics)
+DEFAULT_MAX_REFINEMENTS = 6  # substep halvings: down to sim_dt / 64
+ENERGY_FLOOR_PER_TORQUE = 1e-3  # J per N m: the residual test's energy floor is this * max_torque * 1 rad
+MAX_REFINEMENTS_LIMIT = 12
+# RK4's stability interval is about 2.79 on the negative real axis and 2.83 on the
+# imaginary axis; sim_dt must keep the stiffest rate of the setting inside it with margin.
+RK4_STABLE_RATE_STEP = 2.5
 DEFAULT_CTRL_COST_WEIGHT = 1e-4  # per (N m / max_torque)^2, like Swimmer-v5
 DEFAULT_RESET_NOISE_SCALE = 0.1  # rad for the angles, m/s and rad/s for the speeds
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
@@ -58,22 +74,80 @@ def _flag(name, value):
     return bool(value)
 
 
+def limit_barrier(joint_limit_stiffness, joint_limit_damping, max_torque):
+    """(stiffness (N m/rad), damping (N m s/rad)) of the joint-limit barrier for these kwargs."""
+    stiffness = max(joint_limit_stiffness, LIMIT_STIFFNESS_PER_TORQUE * max_torque)
+    damping = joint_limit_damping
+    if joint_limit_stiffness > 0.0:
+        damping *= math.sqrt(stiffness / joint_limit_stiffness)
+    return stiffness, damping
+
+
+def stiffest_rates(params: PhysicsParams, max_torque: float) -> dict[str, float]:
+    """The setting's fastest linear rates (1/s) at rest, which a stable RK4 step must resolve.
+
+    A joint's effective inertia is at least half the smaller central inertia of its two
+    links (the bound is reached by n = 2), I_j (kg m^2); against it act the joint and
+    limit dampers (rate c / I_j), the limit spring (sqrt(k / I_j)) and the torque
+    (sqrt(max_torque / (I_j * 1 rad)): the rate at which a joint from rest turns a
+    radian); the wheel dampers act on the link masses (c / m).
+    """
+    inertia_j = float(np.min(params.inertia)) / 2.0
+    rates = {
+        "joint damping": float(np.max(params.joint_damping, initial=0.0)) / inertia_j,
+        "wheel damping": float(np.max(params.wheel_damping)) / float(np.min(params.mass)),
+        "torque": math.sqrt(max_torque / inertia_j),
+    }
+    if params.joint_limit > 0.0:
+        rates["joint-limit damping"] = (params.limit_damping + float(np.max(params.joint_damping, initial=0.0))) / inertia_j
+        rates["joint-limit stiffness"] = math.sqrt(params.limit_stiffness / inertia_j)
+    return rates
+
+
+def max_stable_sim_dt(params: PhysicsParams, max_torque: float) -> tuple[float, str]:
+    """(largest accepted sim_dt (s), the rate that bounds it) for a setting."""
+    rates = stiffest_rates(params, max_torque)
+    name = max(rates, key=rates.get)
+    return (RK4_STABLE_RATE_STEP / rates[name] if rates[name] > 0.0 else math.inf), name
+
+
 def build_physics(n_links, sim_dt, frame_skip, mass, length, inertia, joint_damping, wheel_damping,
                   joint_limit, joint_limit_stiffness, joint_limit_damping, paper_model,
-                  exclude_current_positions_from_observation):
+                  exclude_current_positions_from_observation, max_torque=DEFAULT_MAX_TORQUE,
+                  integrator=DEFAULT_INTEGRATOR, energy_tolerance=DEFAULT_ENERGY_TOLERANCE,
+                  max_refinements=DEFAULT_MAX_REFINEMENTS, error_tolerance=DEFAULT_ERROR_TOLERANCE):
     """Validate the physical kwargs shared by :class:`SnakeEnv` and the vector env;
-    return (SnakeModel, PhysicsParams, effective settings dict)."""
+    return (SnakeModel, PhysicsParams, effective settings dict).
+
+    Settings that no refinement makes sound are refused here: sim_dt above the RK4
+    stability limit of the setting's stiffest rate (see :func:`stiffest_rates`)."""
     n_links = check_n_links(n_links)
     sim_dt = _number("sim_dt", sim_dt, "s", minimum=0.0)
     frame_skip = _number("frame_skip", frame_skip, "RK4 steps per env step", minimum=0, integer=True)
     paper_model = _flag("paper_model", paper_model)
     exclude = _flag("exclude_current_positions_from_observation", exclude_current_positions_from_observation)
+    max_torque = _number("max_torque", max_torque, "N m", minimum=0.0)
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {list(INTEGRATORS)}, got {integrator!r}")
+    energy_tolerance = _number("energy_tolerance", energy_tolerance, "relative residual", minimum=0.0)
+    if energy_tolerance > 1.0:
+        raise ValueError(f"energy_tolerance must be in (0, 1] (relative work-energy residual), got {energy_tolerance!r}")
+    error_tolerance = _number("error_tolerance", error_tolerance, "relative local error", minimum=0.0)
+    if error_tolerance > 1.0:
+        raise ValueError(f"error_tolerance must be in (0, 1] (relative local error per RK4 substep), "
+                         f"got {error_tolerance!r}")
+    max_refinements = _number("max_refinements", max_refinements, "substep halvings", minimum=0, strict=False,
+                              integer=True)
+    if max_refinements > MAX_REFINEMENTS_LIMIT:
+        raise ValueError(f"max_refinements must be an integer in [0, {MAX_REFINEMENTS_LIMIT}] (substep halvings), "
+                         f"got {max_refinements!r}")
     joint_damping = _number("joint_damping", joint_damping, "N m s/rad", minimum=0.0, strict=False)
     wheel_damping = _number("wheel_damping", wheel_damping, "N s/m", minimum=0.0, strict=False)
     if joint_limit is not None:
         joint_limit = _number("joint_limit", joint_limit, "rad, or None to disable", minimum=0.0)
-        if joint_limit > math.pi:
-            raise ValueError(f"joint_limit must be in (0, pi] rad or None, got {joint_limit!r}")
+        if joint_limit > MAX_JOINT_LIMIT:
+            raise ValueError(f"joint_limit must be in (0, {MAX_JOINT_LIMIT:.4f}] rad (150 deg: the barrier needs room "
+                             f"before links fold at 170 deg) or None, got {joint_limit!r}")
     joint_limit_stiffness = _number("joint_limit_stiffness", joint_limit_stiffness, "N m/rad", minimum=0.0, strict=False)
     joint_limit_damping = _number("joint_limit_damping", joint_limit_damping, "N m s/rad", minimum=0.0, strict=False)
     if paper_model:
@@ -92,29 +166,43 @@ def build_physics(n_links, sim_dt, frame_skip, mass, length, inertia, joint_damp
     model = SnakeModel(n_links=n_links, mass=mass, length=length, inertia=inertia,
                        joint_damping=joint_damping, wheel_damping=wheel_damping)
     m, h, inertia_arr, c_joint, c_wheel = model.parameters(np.float64)
+    limit_stiffness, limit_damping = limit_barrier(joint_limit_stiffness, joint_limit_damping, max_torque)
     params = PhysicsParams(
         mass=m, half_length=h, inertia=inertia_arr, joint_damping=c_joint, wheel_damping=c_wheel,
         joint_limit=0.0 if joint_limit is None else joint_limit,  # the kernel reads <= 0 as "no limit"
-        limit_stiffness=joint_limit_stiffness, limit_damping=joint_limit_damping,
-        sim_dt=sim_dt, frame_skip=frame_skip, include_position=not exclude)
+        limit_stiffness=limit_stiffness, limit_damping=limit_damping,
+        sim_dt=sim_dt, frame_skip=frame_skip, include_position=not exclude,
+        energy_tolerance=energy_tolerance, energy_floor=ENERGY_FLOOR_PER_TORQUE * max_torque,
+        # "rk4": a plain fixed step, no error control (the guards still apply)
+        error_tolerance=error_tolerance if integrator == "rk4_refined" else math.inf,
+        max_refinements=max_refinements if integrator == "rk4_refined" else 0)
+    bound, rate_name = max_stable_sim_dt(params, max_torque)
+    if sim_dt > bound:
+        raise ValueError(f"sim_dt must be in (0, {bound:.3g}] s for these settings (the {rate_name} rate "
+                         f"{RK4_STABLE_RATE_STEP / bound:.3g} 1/s needs rate * sim_dt <= {RK4_STABLE_RATE_STEP} "
+                         f"for a stable RK4 step), got {sim_dt!r}")
     settings = dict(n_links=n_links, sim_dt=sim_dt, frame_skip=frame_skip, joint_damping=joint_damping,
                     wheel_damping=wheel_damping, joint_limit=joint_limit, paper_model=paper_model,
-                    exclude_current_positions_from_observation=exclude)
+                    exclude_current_positions_from_observation=exclude, max_torque=max_torque,
+                    integrator=integrator, energy_tolerance=energy_tolerance, error_tolerance=error_tolerance,
+                    max_refinements=max_refinements)
     return model, params, settings
 
 
 def configure(env, *, n_links, frame_skip, sim_dt, max_torque, forward_reward_weight, ctrl_cost_weight,
               reset_noise_scale, exclude_current_positions_from_observation, joint_damping, wheel_damping,
               joint_limit, joint_limit_stiffness, joint_limit_damping, paper_model, mass, length, inertia,
-              render_mode, width, height):
+              render_mode, width, height, integrator=DEFAULT_INTEGRATOR, energy_tolerance=DEFAULT_ENERGY_TOLERANCE,
+              error_tolerance=DEFAULT_ERROR_TOLERANCE, max_refinements=DEFAULT_MAX_REFINEMENTS):
     """Validate the constructor kwargs shared by :class:`SnakeEnv` and the vector
     env and set them as attributes of ``env`` (same names as the kwargs)."""
     env.model, env.params, settings = build_physics(
         n_links, sim_dt, frame_skip, mass, length, inertia, joint_damping, wheel_damping, joint_limit,
-        joint_limit_stiffness, joint_limit_damping, paper_model, exclude_current_positions_from_observation)
+        joint_limit_stiffness, joint_limit_damping, paper_model, exclude_current_positions_from_observation,
+        max_torque=max_torque, integrator=integrator, energy_tolerance=energy_tolerance,
+        max_refinements=max_refinements, error_tolerance=error_tolerance)
     for name, value in settings.items():
         setattr(env, name, value)
-    env.max_torque = _number("max_torque", max_torque, "N m", minimum=0.0)
     env.forward_reward_weight = _number("forward_reward_weight", forward_reward_weight, "per m/s")
     env.ctrl_cost_weight = _number("ctrl_cost_weight", ctrl_cost_weight, "per unit action^2", minimum=0.0, strict=False)
     env.reset_noise_scale = _number("reset_noise_scale", reset_noise_scale, "rad, m/s, rad/s", minimum=0.0, strict=False)
@@ -186,12 +274,36 @@ class SnakeEnv(gym.Env):
     classical RK4 (`frame_skip` steps of `sim_dt` per env step, torques held
     constant). Beyond the paper's model, by default: viscous joint damping,
     viscous wheel rolling resistance (so speed is bounded and the task is well
-    posed) and soft joint limits. `paper_model=True` removes all three.
-    The soft limit is a torque -k (phi - limit) - c phidot applied beyond
-    |phi_k| > joint_limit; since the joints are not independent degrees of
-    freedom it acts through the constraints and does not always hold
-    |phi_k| below the limit (random actions can fold an n = 5 snake to
-    125-140 deg for a while; adjacent links have not been seen to fold over).
+    posed) and joint limits. `paper_model=True` removes all three.
+
+    Joint limits. Beyond |phi_k| > joint_limit a barrier torque acts on the
+    joint: with the excess d = |phi_k| - joint_limit (rad) and the room
+    R = 170 deg - joint_limit before adjacent links fold onto each other,
+    T = -sign(phi_k) k d / (1 - d/R) - c phidot_k (N m). Its stiffness is
+    k = max(joint_limit_stiffness, 10 * max_torque) N m/rad (the full torque
+    pushes the joint only ~0.1 rad past the limit), its damping
+    c = joint_limit_damping * sqrt(k / joint_limit_stiffness) N m s/rad (the
+    damping ratio of the kwargs). Its potential diverges at the fold, so no
+    torque and no momentum folds the snake; it acts through the constraints,
+    so |phi_k| can exceed the limit by some tenths of a radian (the barrier
+    is stiff there; the checked integration below resolves it).
+
+    Checked integration (`integrator="rk4_refined"`, the default). Every env
+    step is checked: all values finite; the work-energy balance
+    |K1 - K0 - W| <= `energy_tolerance` * (max(K0, K1) + 1e-3 J/(N m) * max_torque)
+    (K kinetic energy before/after, W the work of all loads over the step, J);
+    no link or joint turning more than 1 rad per RK4 substep (a runaway);
+    no wrapped |phi_k| at or beyond 170 deg (a fold: links through each
+    other, not physical). A sub-env whose step fails is integrated again
+    from its pre-step state with the substep halved, up to `max_refinements`
+    times (only that sub-env; the others keep their result); if it still
+    fails, the step is a simulation failure (see Episode End).
+    `integrator="rk4"`: plain fixed-step RK4 with the same check, a failing
+    step fails at once (no refinement). Settings whose stiffest rate at rest
+    (joint and limit damping against the smallest joint inertia, limit
+    stiffness, torque, wheel damping) is beyond RK4's stability at `sim_dt`
+    are refused with a ValueError that gives the largest accepted `sim_dt`
+    (`snake_env.envs.snake.max_stable_sim_dt`).
 
     Link 1 is the link whose CM is (x, y) in eq. 1; link k+1 is attached to
     the +e_k end of link k, so with theta = 0 link n is the one furthest along +x.
@@ -243,9 +355,12 @@ class SnakeEnv(gym.Env):
     ## Episode End
     - Termination: never (`terminated` is always False).
     - Truncation: after 1000 steps (`max_episode_steps` of the registration),
-      or at once if the integrated state ever becomes non-finite: the step is
-      then undone, the pre-step observation returned, `info["sim_failure"]`
-      is True and a `RuntimeWarning` is issued (a simulator failure is not an
+      or at once on a simulation failure (a step that fails the check above
+      even at the finest substep: non-finite, energy balance, runaway speed or
+      fold): the step is then undone, the pre-step observation (finite, the
+      last valid state) returned with reward exactly 0 (`reward_forward` =
+      `reward_ctrl` = 0, velocities 0, power 0), `info["sim_failure"]` is True
+      and a `RuntimeWarning` names the reason (a simulator failure is not an
       outcome of the task, so it truncates rather than terminates).
 
     ## Info
@@ -257,7 +372,7 @@ class SnakeEnv(gym.Env):
     `distance_from_origin`, `kinetic_energy`.
 
     ## Arguments
-    `gym.make("snake_env/Snake5-v0", **kwargs)`; all are plain scalars so they
+    `gym.make("snake_env/Snake5-v1", **kwargs)`; all are plain scalars so they
     can come from YAML.
 
     | Parameter | Default | Description |
@@ -272,15 +387,24 @@ class SnakeEnv(gym.Env):
     | `exclude_current_positions_from_observation` | True | leave CM x, y out of obs |
     | `joint_damping` | 0.01 | viscous joint damping (N m s/rad) |
     | `wheel_damping` | 0.1 | rolling resistance per wheel (N s/m) |
-    | `joint_limit` | pi/2 | soft limit on abs(phi_k) (rad); None disables |
-    | `joint_limit_stiffness` | 20.0 | spring beyond the limit (N m/rad) |
-    | `joint_limit_damping` | 0.2 | damper beyond the limit (N m s/rad) |
+    | `joint_limit` | pi/2 | limit on abs(phi_k) (rad), in (0, 150 deg]; None disables |
+    | `joint_limit_stiffness` | 20.0 | least barrier stiffness beyond the limit (N m/rad); raised to 10 * max_torque |
+    | `joint_limit_damping` | 0.2 | barrier damper at that least stiffness (N m s/rad) |
     | `paper_model` | False | True: joint_damping = wheel_damping = 0, no limits (the paper's model) |
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
     | `render_mode` | None | "rgb_array" or "human" |
     | `width`, `height` | 480, 480 | frame size (pixels) |
+    | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
+    | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |
+    | `max_refinements` | 6 | substep halvings of a failing step (finest sim_dt / 64) |
 
     ## Version History
+    * v1: joint limit is a barrier scaled with max_torque (was a 20 N m/rad linear
+      spring that strong torques overcame); checked integration with per-sub-env
+      refinement; runaway and fold detection (`sim_failure` no longer only for
+      non-finite values); reward 0 on a failed step; kwargs `integrator`,
+      `energy_tolerance`, `max_refinements`; settings RK4 cannot step stably and
+      `joint_limit` > 150 deg are refused.
     * v0: initial version.
     """
 
@@ -308,6 +432,10 @@ class SnakeEnv(gym.Env):
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
+        integrator: str = DEFAULT_INTEGRATOR,
+        energy_tolerance: float = DEFAULT_ENERGY_TOLERANCE,
+        error_tolerance: float = DEFAULT_ERROR_TOLERANCE,
+        max_refinements: int = DEFAULT_MAX_REFINEMENTS,
     ):
         configure(self, n_links=n_links, frame_skip=frame_skip, sim_dt=sim_dt, max_torque=max_torque,
                   forward_reward_weight=forward_reward_weight, ctrl_cost_weight=ctrl_cost_weight,
@@ -316,7 +444,9 @@ class SnakeEnv(gym.Env):
                   joint_damping=joint_damping, wheel_damping=wheel_damping, joint_limit=joint_limit,
                   joint_limit_stiffness=joint_limit_stiffness, joint_limit_damping=joint_limit_damping,
                   paper_model=paper_model, mass=mass, length=length, inertia=inertia,
-                  render_mode=render_mode, width=width, height=height)
+                  render_mode=render_mode, width=width, height=height, integrator=integrator,
+                  energy_tolerance=energy_tolerance, error_tolerance=error_tolerance,
+                  max_refinements=max_refinements)
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
 
         n = self.n_links
@@ -379,10 +509,12 @@ class SnakeEnv(gym.Env):
         aux = self._aux
         failed = bool(aux[AUX_FAILED])
         if failed:
-            warnings.warn("snake_env: the simulated state became non-finite; the step was undone and the episode "
-                          "truncated (info['sim_failure'] = True)", RuntimeWarning, stacklevel=2)
-        reward_forward = self.forward_reward_weight * aux[AUX_VX]
-        ctrl_cost = self.ctrl_cost_weight * float(squared_norm(a))
+            warnings.warn(f"snake_env: simulation failure ({physics.FAILURE_REASONS[int(aux[AUX_FAILED])]}); the step "
+                          "was undone, reward 0 and the episode truncated (info['sim_failure'] = True)",
+                          RuntimeWarning, stacklevel=2)
+        reward_forward = self.forward_reward_weight * aux[AUX_VX]  # 0 on failure: the state was kept
+        # a failed step is not an outcome of the action: no control cost either (reward exactly 0)
+        ctrl_cost = 0.0 if failed else self.ctrl_cost_weight * float(squared_norm(a))
         reward = float(reward_forward - ctrl_cost)
         self._trail.append((aux[AUX_X], aux[AUX_Y]))
         info = {

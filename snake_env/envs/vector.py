@@ -34,8 +34,9 @@ from gymnasium.vector.utils import batch_space
 
 from . import physics
 from .physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_VY, AUX_WORK, AUX_X, AUX_Y
-from .snake import (DEFAULT_CTRL_COST_WEIGHT, DEFAULT_FRAME_SKIP, DEFAULT_JOINT_DAMPING, DEFAULT_JOINT_LIMIT,
-                    DEFAULT_LIMIT_DAMPING, DEFAULT_LIMIT_STIFFNESS, DEFAULT_MAX_TORQUE, DEFAULT_RESET_NOISE_SCALE,
+from .snake import (DEFAULT_CTRL_COST_WEIGHT, DEFAULT_ENERGY_TOLERANCE, DEFAULT_ERROR_TOLERANCE, DEFAULT_FRAME_SKIP, DEFAULT_INTEGRATOR,
+                    DEFAULT_JOINT_DAMPING, DEFAULT_JOINT_LIMIT, DEFAULT_LIMIT_DAMPING, DEFAULT_LIMIT_STIFFNESS,
+                    DEFAULT_MAX_REFINEMENTS, DEFAULT_MAX_TORQUE, DEFAULT_RESET_NOISE_SCALE,
                     DEFAULT_SIM_DT, DEFAULT_WHEEL_DAMPING, RESET_INFO_KEYS, STEP_INFO_KEYS, TRAIL_LENGTH,
                     _number, check_actions, configure, observation_space, observation_structure,
                     squared_norm)
@@ -94,6 +95,10 @@ class SnakeVectorEnv(VectorEnv):
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
+        integrator: str = DEFAULT_INTEGRATOR,
+        energy_tolerance: float = DEFAULT_ENERGY_TOLERANCE,
+        error_tolerance: float = DEFAULT_ERROR_TOLERANCE,
+        max_refinements: int = DEFAULT_MAX_REFINEMENTS,
     ):
         self.num_envs = _number("num_envs", num_envs, "sub-envs", minimum=0, integer=True)
         if max_episode_steps is not None:
@@ -107,7 +112,9 @@ class SnakeVectorEnv(VectorEnv):
                   joint_damping=joint_damping, wheel_damping=wheel_damping, joint_limit=joint_limit,
                   joint_limit_stiffness=joint_limit_stiffness, joint_limit_damping=joint_limit_damping,
                   paper_model=paper_model, mass=mass, length=length, inertia=inertia,
-                  render_mode=render_mode, width=width, height=height)
+                  render_mode=render_mode, width=width, height=height, integrator=integrator,
+                  energy_tolerance=energy_tolerance, error_tolerance=error_tolerance,
+                  max_refinements=max_refinements)
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt)), "autoreset_mode": self.autoreset_mode}
 
         n, B = self.n_links, self.num_envs
@@ -190,10 +197,13 @@ class SnakeVectorEnv(VectorEnv):
         self._record_trail(stepped)
         failed = (aux[:, AUX_FAILED] != 0.0) & stepped
         if failed.any():
-            warnings.warn(f"snake_env: the simulated state became non-finite in {int(failed.sum())} sub-env(s); their "
-                          "step was undone and the episode truncated (info['sim_failure'])", RuntimeWarning, stacklevel=2)
-        reward_forward = self.forward_reward_weight * aux[:, AUX_VX]
-        ctrl_cost = self.ctrl_cost_weight * squared_norm(a)
+            reasons = sorted({physics.FAILURE_REASONS[int(c)] for c in aux[failed, AUX_FAILED]})
+            warnings.warn(f"snake_env: simulation failure in {int(failed.sum())} sub-env(s) ({'; '.join(reasons)}); "
+                          "their step was undone, reward 0 and the episode truncated (info['sim_failure'])",
+                          RuntimeWarning, stacklevel=2)
+        reward_forward = self.forward_reward_weight * aux[:, AUX_VX]  # 0 on failure: the state was kept
+        # as in SnakeEnv: a failed step has no control cost either (reward exactly 0)
+        ctrl_cost = np.where(aux[:, AUX_FAILED] != 0.0, 0.0, self.ctrl_cost_weight * squared_norm(a))
         rewards = reward_forward - ctrl_cost
         self._steps += 1
         terminated = np.zeros(B, bool)

@@ -48,12 +48,15 @@ def test_derivatives_match_paper_recursion_and_kinematics(n):
 
 
 def limit_torques(model, q, u, torques, limit, k_limit, c_limit):
-    """Joint torques with the soft limit added, computed with numpy kinematics."""
+    """Joint torques with the limit barrier added (s(d) (k d / (1 - d/R) + c phidot),
+    R = fold - limit, s(d) = d / (d + ramp)), computed with numpy kinematics."""
     _, omega = model.link_velocities(q, u)
     phi = np.diff(q[: model.n_links])
     phidot = np.diff(omega)
     excess = np.where(phi > limit, phi - limit, np.where(phi < -limit, phi + limit, 0.0))
-    return torques - np.where(excess != 0.0, k_limit * excess + c_limit * phidot, 0.0)
+    depth = np.minimum(np.abs(excess) / (compiled.FOLD_ANGLE - limit), compiled.BARRIER_CAP)
+    ramp = np.abs(excess) / (np.abs(excess) + compiled.LIMIT_RAMP)
+    return torques - np.where(excess != 0.0, ramp * (k_limit * excess / (1.0 - depth) + c_limit * phidot), 0.0)
 
 
 def test_soft_joint_limit_equals_extra_joint_torque():
@@ -63,8 +66,8 @@ def test_soft_joint_limit_equals_extra_joint_torque():
     limit, k_limit, c_limit = 0.3, 40.0, 0.7  # rad, N m/rad, N m s/rad
     for _ in range(5):
         q, u, torques = random_state(n, rng)
-        # joints 0, 2, 4 beyond +-0.3 rad, joints 1, 3 inside
-        phi = np.array([0.5, -0.1, -0.45, 0.2, 0.31]) + rng.uniform(-0.005, 0.005, n - 1)
+        # joints 0, 2, 4 beyond +-0.3 rad (joint 4 deep in the barrier, d/R ~ 0.8), joints 1, 3 inside
+        phi = np.array([0.5, -0.1, -0.45, 0.2, 2.5]) + rng.uniform(-0.005, 0.005, n - 1)
         q[:n] = rng.normal() + np.concatenate([[0.0], np.cumsum(phi)])
         phi = np.diff(q[:n])
         assert np.any(np.abs(phi) > limit) and np.any(np.abs(phi) < limit)

@@ -7,14 +7,14 @@ import yaml
 
 from train import config as cfg
 
-ENV = "snake_env/Snake3-v0"
+ENV = "snake_env/Snake3-v1"
 
 
 @pytest.fixture
 def yaml_file(tmp_path):
     path = tmp_path / "hp.yaml"
     path.write_text(
-        "snake_env/Snake3-v0:\n"
+        "snake_env/Snake3-v1:\n"
         "  n_timesteps: !!float 1e5\n"
         "  n_envs: 8\n"
         "  gamma: 0.99\n"
@@ -69,8 +69,8 @@ def test_unknown_key_lists_valid_keys(yaml_file):
 def test_unknown_algo_and_env_list_valid_ones(yaml_file):
     with pytest.raises(cfg.ConfigError, match=r"\['ppo', 'sac'\]"):
         cfg.build_config("a2c", ENV, yaml_file)
-    with pytest.raises(cfg.ConfigError, match="available env ids: \\['snake_env/Snake3-v0'\\]"):
-        cfg.build_config("ppo", "snake_env/Snake9-v0", yaml_file)
+    with pytest.raises(cfg.ConfigError, match="available env ids: \\['snake_env/Snake3-v1'\\]"):
+        cfg.build_config("ppo", "snake_env/Snake9-v1", yaml_file)
 
 
 @pytest.mark.parametrize("override, pattern", [
@@ -90,7 +90,7 @@ def test_bad_values_are_one_line_errors(yaml_file, override, pattern):
 
 def test_algo_and_env_cannot_come_from_the_yaml(tmp_path):
     path = tmp_path / "hp.yaml"
-    path.write_text("snake_env/Snake3-v0:\n  algo: sac\n")
+    path.write_text("snake_env/Snake3-v1:\n  algo: sac\n")
     with pytest.raises(cfg.ConfigError, match="algo cannot be set"):
         cfg.build_config("ppo", ENV, path)
 
@@ -111,7 +111,7 @@ def test_saved_config_round_trips(tmp_path, yaml_file):
 def test_shipped_configs_are_valid(algo):
     """Every entry of configs/<algo>.yaml merges and its keys are accepted by SB3."""
     data = yaml.safe_load(cfg.default_config_path(algo).read_text())
-    for env_id in ("snake_env/Snake3-v0", "snake_env/Snake5-v0", "snake_env/Snake8-v0"):
+    for env_id in ("snake_env/Snake3-v1", "snake_env/Snake5-v1", "snake_env/Snake8-v1"):
         assert env_id in data
     for env_id in data:
         config = cfg.build_config(algo, env_id)

@@ -1,0 +1,39 @@
+"""The reduced fuzz of CI: the cells where v0 leaked, through the vector env, leak nothing."""
+
+import json
+
+import pytest
+
+from benchmarks import fuzz
+
+
+@pytest.mark.parametrize("paper_model", [False, True])
+def test_reduced_fuzz_leaks_nothing(paper_model):
+    cells = [c for c in fuzz.matrix() if c["paper_model"] == paper_model
+             and (c["n_links"], c["max_torque"], c["length"], c["mass"]) in fuzz.QUICK_CELLS]
+    assert len(cells) == len(fuzz.QUICK_CELLS)
+    rows = [fuzz.run_cell(c, num_envs=32, steps=32 * 60, seed=1) for c in cells]
+    ran = [r for r in rows if not r["refused"]]
+    assert len(ran) >= 3
+    for r in ran:
+        assert r["env_steps"] >= 32 * 50
+        assert r["leaked"] == 0, r
+        assert r["residual_max"] is None or r["residual_max"] <= 1e-2 + 1e-9, r
+
+
+def test_fuzz_cli_writes_the_report(tmp_path):
+    md, js = tmp_path / "reliability.md", tmp_path / "fuzz.json"
+    code = fuzz.main(["--steps-per-cell", "64", "--num-envs", "16", "--only", "'n_links': 3, 'max_torque': 10.0, "
+                      "'length': 0.2, 'mass': 1.0", "--json", str(js), "--markdown", str(md)])
+    assert code == 0
+    rows = json.loads(js.read_text())
+    assert len(rows) == 2 and all(r["leaked"] == 0 for r in rows)
+    text = md.read_text()
+    assert "Leaked values: 0" in text and "| 3 | 10 | 0.2 | 1 |" in text
+
+
+def test_fuzz_cli_rejects_bad_sizes(capsys):
+    with pytest.raises(SystemExit) as exc:
+        fuzz.main(["--num-envs", "1"])
+    assert exc.value.code == 2
+    assert "--num-envs" in capsys.readouterr().err
