@@ -1,0 +1,189 @@
+"""The physical settings of a snake env as one typed config (dm_control's Physics half).
+
+:class:`PhysicsConfig` is the single place where the physical kwargs are named,
+given units and defaults, and validated: its field names are the env kwargs
+and the YAML ``env_kwargs`` keys, for every task, in the single and the vector
+env alike. Adding a setting is one field line here (plus, if the kernel needs
+it, one argument where :meth:`PhysicsConfig.build` fills
+:class:`~snake_env.envs.physics.PhysicsParams`).
+
+Validation is driven by each field's ``metadata`` (:func:`setting`): a bad
+value raises ``ValueError`` with one line naming the argument, the allowed
+values and the unit.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from snake_env.dynamics import SnakeModel
+from snake_env.dynamics.validation import check_n_links
+
+from .physics import PhysicsParams
+
+# Defaults (units in the field docs). One env step = sim_dt * frame_skip = 0.04 s, like Swimmer-v5.
+DEFAULT_SIM_DT = 0.01  # s, one RK4 step
+DEFAULT_FRAME_SKIP = 4  # RK4 steps per env step
+DEFAULT_MAX_TORQUE = 1.0  # N m, the paper's Table III torque amplitude
+DEFAULT_JOINT_DAMPING = 0.01  # N m s/rad, viscous joint friction
+DEFAULT_WHEEL_DAMPING = 0.1  # N s/m per wheel, rolling resistance
+DEFAULT_JOINT_LIMIT = math.pi / 2  # rad, soft limit on |phi_k|
+DEFAULT_LIMIT_STIFFNESS = 20.0  # N m/rad, spring beyond the limit
+DEFAULT_LIMIT_DAMPING = 0.2  # N m s/rad, damper beyond the limit
+# With the joint's effective inertia I_eff ~ 0.015 kg m^2 (n = 5, paper links) the limit
+# rings at sqrt(k / I_eff) ~ 36 rad/s (omega dt = 0.36 per RK4 step) with damping ratio
+# ~0.2. A larger damper switches on a larger force jump c * phidot at the limit, which
+# RK4 resolves poorly at sim_dt = 0.01 s (measured energy-balance error grows ~15x at c = 1).
+GRAVITY = 9.81  # m/s^2, for the cost of transport only (the snake moves on a plane)
+
+
+def number(name, value, unit, *, minimum=None, strict=True, integer=False, maximum=None):
+    """A finite real scalar (int when ``integer``) within bounds, else ValueError naming ``name``."""
+    kind = numbers.Integral if integer else numbers.Real
+    bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum}"
+    if maximum is not None:
+        bound += f" and <= {maximum:g}"
+    what = f"{'an integer' if integer else 'a finite number'}{bound} ({unit})"
+    if isinstance(value, bool) or not isinstance(value, kind) or not math.isfinite(value):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    if minimum is not None and (value <= minimum if strict else value < minimum):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def flag(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def setting(default, unit, kind="real", *, minimum=None, strict=True, maximum=None, doc=""):
+    """A dataclass field whose metadata drives :func:`check_fields`.
+
+    kind: "real", "int", "bool", "optional_real" (None allowed), "per_link"
+    (scalar or length-n sequence, checked by :class:`SnakeModel`), "choice"
+    (``maximum`` then holds the allowed values) or "range" (a (low, high) pair).
+    """
+    return field(default=default, metadata=dict(unit=unit, kind=kind, minimum=minimum, strict=strict,
+                                                maximum=maximum, doc=doc))
+
+
+def check_value(name: str, value, meta: dict):
+    kind = meta["kind"]
+    if kind == "bool":
+        return flag(name, value)
+    if kind == "per_link":
+        return value
+    if kind == "choice":
+        if value not in meta["maximum"]:
+            raise ValueError(f"{name} must be one of {list(meta['maximum'])}, got {value!r}")
+        return value
+    if kind == "range":
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise ValueError(f"{name} must be a pair [low, high] ({meta['unit']}), got {value!r}")
+        low, high = (number(name, v, meta["unit"], minimum=meta["minimum"], strict=False) for v in value)
+        if low > high:
+            raise ValueError(f"{name} must be a pair [low, high] with low <= high ({meta['unit']}), got {value!r}")
+        return (low, high)
+    if kind == "optional_real" and value is None:
+        return None
+    unit = meta["unit"] + (", or None to disable" if kind == "optional_real" else "")
+    return number(name, value, unit, minimum=meta["minimum"], strict=meta["strict"], integer=kind == "int",
+                  maximum=meta["maximum"])
+
+
+def check_fields(obj) -> None:
+    """Validate and normalize every field of a (frozen) dataclass built with :func:`setting`."""
+    for f in fields(obj):
+        if f.metadata:
+            object.__setattr__(obj, f.name, check_value(f.name, getattr(obj, f.name), f.metadata))
+
+
+def split_kwargs(kwargs: dict, *owners) -> list[dict]:
+    """Split ``kwargs`` among dataclasses by field name; an unknown name -> one-line ValueError."""
+    parts = [{} for _ in owners]
+    names = [{f.name for f in fields(owner)} for owner in owners]
+    unknown = []
+    for key, value in kwargs.items():
+        for part, owned in zip(parts, names):
+            if key in owned:
+                part[key] = value
+                break
+        else:
+            unknown.append(key)
+    if unknown:
+        valid = sorted(set().union(*names))
+        raise ValueError(f"unknown argument(s) {sorted(unknown)}; valid arguments: {valid}")
+    return parts
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Physical and integration settings shared by every task (kwargs = YAML keys).
+
+    `paper_model=True` is the paper's model (section II): no dissipation and
+    no joint limits; it sets joint_damping = wheel_damping = 0 and
+    joint_limit = None, and rejects other values for them.
+    """
+
+    n_links: int = setting(5, "links", "int", minimum=1, doc="number of links n >= 2")
+    frame_skip: int = setting(DEFAULT_FRAME_SKIP, "RK4 steps per env step", "int", minimum=0,
+                              doc="RK4 steps per env step")
+    sim_dt: float = setting(DEFAULT_SIM_DT, "s", minimum=0.0, doc="RK4 step; env dt = sim_dt * frame_skip")
+    max_torque: float = setting(DEFAULT_MAX_TORQUE, "N m", minimum=0.0, doc="joint torque at action 1")
+    joint_damping: float = setting(DEFAULT_JOINT_DAMPING, "N m s/rad", minimum=0.0, strict=False,
+                                   doc="viscous joint damping")
+    wheel_damping: float = setting(DEFAULT_WHEEL_DAMPING, "N s/m", minimum=0.0, strict=False,
+                                   doc="rolling resistance per wheel")
+    joint_limit: float | None = setting(DEFAULT_JOINT_LIMIT, "rad", "optional_real", minimum=0.0,
+                                        maximum=math.pi, doc="soft limit on |phi_k|; None disables")
+    joint_limit_stiffness: float = setting(DEFAULT_LIMIT_STIFFNESS, "N m/rad", minimum=0.0, strict=False,
+                                           doc="spring beyond the limit")
+    joint_limit_damping: float = setting(DEFAULT_LIMIT_DAMPING, "N m s/rad", minimum=0.0, strict=False,
+                                         doc="damper beyond the limit")
+    paper_model: bool = setting(False, "-", "bool", doc="the paper's model: no damping, no limits")
+    mass: float = setting(1.0, "kg", "per_link", doc="per-link mass (paper Table II)")
+    length: float = setting(0.2, "m", "per_link", doc="per-link length (paper Table II)")
+    inertia: float = setting(0.005, "kg m^2", "per_link", doc="per-link central inertia (paper Table II)")
+    exclude_current_positions_from_observation: bool = setting(True, "-", "bool",
+                                                               doc="leave the CM x, y out of the observation")
+
+    def __post_init__(self):
+        object.__setattr__(self, "n_links", check_n_links(self.n_links))
+        check_fields(self)
+        if self.paper_model:
+            # Only the defaults may be overridden silently; anything else contradicts the flag.
+            conflicts = [name for name, default in (("joint_damping", DEFAULT_JOINT_DAMPING),
+                                                    ("wheel_damping", DEFAULT_WHEEL_DAMPING))
+                         if getattr(self, name) not in (default, 0.0)]
+            if self.joint_limit not in (None, DEFAULT_JOINT_LIMIT):
+                conflicts.append("joint_limit")
+            if conflicts:
+                raise ValueError(f"paper_model=True fixes joint_damping=0, wheel_damping=0 and joint_limit=None; "
+                                 f"do not also pass {', '.join(conflicts)}")
+            for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None)):
+                object.__setattr__(self, name, value)
+
+    @property
+    def dt(self) -> float:
+        """Duration of one env step (s)."""
+        return self.sim_dt * self.frame_skip
+
+    def build(self) -> tuple[SnakeModel, PhysicsParams]:
+        """The dynamics model and the compiled step's constants of these settings."""
+        model = SnakeModel(n_links=self.n_links, mass=self.mass, length=self.length, inertia=self.inertia,
+                           joint_damping=self.joint_damping, wheel_damping=self.wheel_damping)
+        m, h, inertia, c_joint, c_wheel = model.parameters(np.float64)
+        params = PhysicsParams(
+            mass=m, half_length=h, inertia=inertia, joint_damping=c_joint, wheel_damping=c_wheel,
+            joint_limit=0.0 if self.joint_limit is None else self.joint_limit,  # the kernel reads <= 0 as "no limit"
+            limit_stiffness=self.joint_limit_stiffness, limit_damping=self.joint_limit_damping,
+            sim_dt=self.sim_dt, frame_skip=self.frame_skip,
+            include_position=not self.exclude_current_positions_from_observation)
+        return model, params
