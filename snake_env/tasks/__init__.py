@@ -7,12 +7,12 @@ A task is one :class:`Task` subclass and one row of the registration table
 from __future__ import annotations
 
 from .base import Task
-#from .command import CommandTask
+from .command import CommandTask
 from .forward import ForwardTask
-#from .path import PathTask
-#from .reach import ReachTask
+from .path import PathTask
+from .reach import ReachTask
 
-TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (ForwardTask,)}
+TASKS: dict[str, type[Task]] = {cls.name: cls for cls in (ForwardTask, CommandTask, ReachTask, PathTask)}
 
 
 def task_class(task) -> type[Task]:
