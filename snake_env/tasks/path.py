@@ -71,7 +71,7 @@ class PathTask(Task):
     | `path_type` | "line" | "line", "circle" or "sine" |
     | `initial_offset` | 0.5 | start cross-track offset magnitude (m) |
     | `radius` | 1.5 | circle radius (m) |
-    | `amplitude`, `wavelength` | 0.5, 4.0 | sine shape (m) |
+    | `amplitude`, `wavelength` | 0.5, 8.0 | sine shape (m) |
     | `progress_weight` | 1.0 | per m/s of along-track speed |
     | `cross_track_weight` | 1.0 | per m of abs(e) |
     | `max_cross_track_error` | 2.0 | termination distance (m) |
@@ -85,7 +85,7 @@ class PathTask(Task):
     initial_offset: float = setting(0.5, "m", minimum=0.0, strict=False, doc="start cross-track offset")
     radius: float = setting(1.5, "m", minimum=0.0, doc="circle radius")
     amplitude: float = setting(0.5, "m", minimum=0.0, strict=False, doc="sine amplitude")
-    wavelength: float = setting(4.0, "m", minimum=0.0, doc="sine wavelength")
+    wavelength: float = setting(8.0, "m", minimum=0.0, doc="sine wavelength")
     progress_weight: float = setting(1.0, "per m/s", doc="weight of the along-track speed")
     cross_track_weight: float = setting(1.0, "per m", minimum=0.0, strict=False, doc="weight of abs(e)")
     max_cross_track_error: float = setting(2.0, "m", minimum=0.0, doc="termination distance")
