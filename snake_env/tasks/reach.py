@@ -10,7 +10,7 @@ from gymnasium import spaces
 
 from snake_env.envs.config import setting
 
-from .base import StepContext, Task
+from .base import StepContext, Task, link_centers
 
 
 @dataclass(frozen=True)
@@ -117,4 +117,9 @@ class ReachTask(Task):
         goal = state["goal"][row]
         angles = np.linspace(0.0, 2.0 * math.pi, 33)
         circle = goal + self.distance_threshold * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
-        return [("point", goal), ("polyline", circle)]
+        # the goal is often outside the view (which follows the snake): an arrow towards it too
+        cm = link_centers(config, q).mean(axis=0)
+        to_goal = goal - cm
+        distance = float(np.hypot(*to_goal))
+        tip = cm + to_goal * min(1.0, 0.5 / distance) if distance > 0 else cm
+        return [("point", goal), ("polyline", circle), ("arrow", (cm, tip))]
