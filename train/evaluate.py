@@ -56,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--video", help="write the first episode as PATH.gif or PATH.mp4")
     parser.add_argument("--plot", help="write the CM trajectories as a PNG")
     parser.add_argument("--json", dest="json_path", help="write the metrics as JSON")
+    parser.add_argument("--env-kwarg", dest="env_kwargs", action="append", default=[], metavar="KEY=VALUE",
+                        help="set an env kwarg (value read as YAML), e.g. path_type=circle; repeatable; "
+                             "overrides the run's env_kwargs")
     parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default configs/serpenoid.yaml)")
     return parser
 
@@ -228,7 +231,7 @@ def policy_actor(args):
     return env_id, env_kwargs, act, lambda: None, title, {"algo": loaded.algo, "model": str(files.model)}
 
 
-def gait_for_task(env_id: str, path) -> tuple:
+def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
     """(gait, its straight-line speed (m/s) or None, n_links, max_torque, dt, include_position) for a task id:
     the searched gait of the locomotion id ``snake_env/Snake{n}-v*`` with the same n (newest version)."""
     import re
@@ -236,7 +239,7 @@ def gait_for_task(env_id: str, path) -> tuple:
     from agents.search import env_geometry, load_gaits
     from agents.serpenoid import SerpenoidParams
 
-    n_links, max_torque, dt, include_position = env_geometry(env_id, {})
+    n_links, max_torque, dt, include_position = env_geometry(env_id, dict(env_kwargs or {}))
     gaits = load_gaits(path)
     pattern = re.compile(rf"^snake_env/Snake{n_links}-v(\d+)$")
     matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
@@ -287,8 +290,9 @@ def steered_actor(args, path):
     """Liljebäck's line-of-sight path following (``los``) or the command-steered serpenoid (``steering``)."""
     from agents.path_following import LineOfSightController, SteeringController
 
+    env_kwargs = parse_env_kwargs(args.env_kwargs)
     try:
-        params, speed, n_links, max_torque, dt, include_position = gait_for_task(args.env_id, path)
+        params, speed, n_links, max_torque, dt, include_position = gait_for_task(args.env_id, path, env_kwargs)
         if speed is None:
             raise ValueError(f"the gait for n_links={n_links} in {path} has no search.mean_forward_velocity")
         cls = LineOfSightController if args.baseline == "los" else SteeringController
@@ -296,8 +300,23 @@ def steered_actor(args, path):
     except ValueError as exc:
         raise EvalError(_first_line(exc)) from None
     title = f"{args.baseline} baseline (steered serpenoid {params}) on {args.env_id}"
-    return (args.env_id, {}, controller.act, controller.reset, title,
+    return (args.env_id, env_kwargs, controller.act, controller.reset, title,
             {"algo": args.baseline, "params": params.to_dict()})
+
+
+def parse_env_kwargs(items) -> dict:
+    import yaml
+
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise EvalError(f"--env-kwarg expects KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(value) if value.strip() else None
+        except yaml.YAMLError:
+            out[key.strip()] = value
+    return out
 
 
 def evaluate(args) -> dict:
@@ -306,6 +325,7 @@ def evaluate(args) -> dict:
         env_id, env_kwargs, act, reset, title, meta = serpenoid_actor(args)
     else:
         env_id, env_kwargs, act, reset, title, meta = policy_actor(args)
+    env_kwargs = {**env_kwargs, **parse_env_kwargs(getattr(args, "env_kwargs", None))}
     if not args.deterministic:
         from stable_baselines3.common.utils import set_random_seed
 

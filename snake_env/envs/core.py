@@ -19,7 +19,7 @@ from snake_env.tasks import Task, task_class
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_reset_info, common_step_info
 
 from . import physics
-from .config import PhysicsConfig, split_kwargs
+from .config import PhysicsConfig, number, split_kwargs
 from .physics import AUX_X, AUX_Y
 
 
@@ -129,3 +129,40 @@ class SnakeBatch:
         values.update({f.name: getattr(self.task, f.name) for f in fields(self.task)})
         values.update(model=self.model, params=self.params, task=self.task, config=self.config)
         return values
+
+
+class TaskEnvBase:
+    """What the single and the vector env share: construction from ``task`` and kwargs
+    (physics config, task, rendering settings), attributes named as the kwargs, ``dt``."""
+
+    def _build(self, task, num_envs: int, render_mode, width, height, kwargs: dict) -> None:
+        task_obj, config = make_task_and_config(task, kwargs)
+        self._batch = SnakeBatch(task_obj, config, num_envs)
+        for name, value in self._batch.env_attributes().items():
+            setattr(self, name, value)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                             f"got {render_mode!r}")
+        self.render_mode = render_mode
+        self.width = number("width", width, "pixels", minimum=0, integer=True)
+        self.height = number("height", height, "pixels", minimum=0, integer=True)
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
+        self.step_info_keys = self._batch.step_info_keys
+        self.observation_structure = observation_structure(config.n_links, self.params.include_position)
+        self._renderer = None
+        self._has_reset = False
+
+    @property
+    def dt(self) -> float:
+        """Duration of one env step (s)."""
+        return self.params.dt
+
+    @property
+    def task_state(self) -> dict[str, np.ndarray]:
+        """The task's per-episode state (goal, command, path offset, ...) as arrays of B rows
+        (one row for the single env)."""
+        return self._batch.task_state
+
+    def _overlay(self, row: int):
+        """The task's drawing for sub-env ``row`` (see :meth:`Task.overlay`)."""
+        return self.task.overlay(self.config, self._batch.task_state, row, self._batch.q[row])

@@ -21,26 +21,16 @@ import numpy as np
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, RESET_INFO_KEYS
 from snake_env.tasks.forward import ForwardTask
 
-from .config import number
-from .core import SnakeBatch, make_task_and_config, observation_structure
+from .core import TaskEnvBase
 from .physics import AUX_X, AUX_Y
 
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
 # the forward task's info keys (``env.step_info_keys`` gives any task's)
 STEP_INFO_KEYS = COMMON_STEP_INFO_KEYS + ForwardTask.step_info_keys
-__all__ = ["SnakeEnv", "SnakeGoalEnv", "STEP_INFO_KEYS", "RESET_INFO_KEYS", "TRAIL_LENGTH", "check_render_args"]
+__all__ = ["SnakeEnv", "SnakeGoalEnv", "STEP_INFO_KEYS", "RESET_INFO_KEYS", "TRAIL_LENGTH"]
 
 
-def check_render_args(env, render_mode, width, height) -> None:
-    """Validate and set the rendering kwargs shared by the single and the vector env."""
-    if render_mode is not None and render_mode not in env.metadata["render_modes"]:
-        raise ValueError(f"render_mode must be one of {env.metadata['render_modes']} or None, got {render_mode!r}")
-    env.render_mode = render_mode
-    env.width = number("width", width, "pixels", minimum=0, integer=True)
-    env.height = number("height", height, "pixels", minimum=0, integer=True)
-
-
-class SnakeEnv(gym.Env):
+class SnakeEnv(TaskEnvBase, gym.Env):
     """One snake doing one task; ``task`` names it (default "forward", the
     ``snake_env/Snake{n}-v0`` task), every other kwarg is a field of
     :class:`~snake_env.envs.config.PhysicsConfig` or of the task class, whose
@@ -51,37 +41,17 @@ class SnakeEnv(gym.Env):
 
     def __init__(self, task="forward", render_mode: str | None = None, width: int = 480, height: int = 480,
                  **kwargs):
-        task_obj, config = make_task_and_config(task, kwargs)
-        self._batch = SnakeBatch(task_obj, config, 1)
-        for name, value in self._batch.env_attributes().items():
-            setattr(self, name, value)
-        check_render_args(self, render_mode, width, height)
-        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
-        self.step_info_keys = self._batch.step_info_keys
-        n = self.n_links
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (n - 1,), np.float32)
+        self._build(task, 1, render_mode, width, height, kwargs)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (self.n_links - 1,), np.float32)
         self.observation_space = self._batch.single_observation_space
-        self.observation_structure = observation_structure(n, self.params.include_position)
         self._trail = deque(maxlen=TRAIL_LENGTH)
-        self._renderer = None
         self._window = None
-        self._has_reset = False
 
     # ------------------------------------------------------------------ properties
-    @property
-    def dt(self) -> float:
-        """Duration of one env step (s)."""
-        return self.params.dt
-
     @property
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of (q, u): q = (theta_1..theta_n, x, y) (eq. 1), u = (V_1, thetadot_1) (eq. 2)."""
         return self._batch.q[0].copy(), self._batch.u[0].copy()
-
-    @property
-    def task_state(self) -> dict[str, np.ndarray]:
-        """The task's per-episode state (goal, command, path offset, ...) as arrays of one row."""
-        return self._batch.task_state
 
     def set_state(self, q, u):
         """Put the snake in state (q, u) (the task state is kept); return the new observation."""
@@ -128,9 +98,6 @@ class SnakeEnv(gym.Env):
         if all(isinstance(v, np.ndarray) and v.ndim > 1 for v in batched.values()):  # a Dict observation
             return {key: value[0] for key, value in batched.items()}
         return {key: value[0].item() if value.ndim == 1 else value[0] for key, value in batched.items()}
-
-    def _overlay(self, row: int):
-        return self.task.overlay(self.config, self._batch.task_state, row, self._batch.q[row])
 
     def _restart_trail(self):
         aux = self._batch.aux[0]

@@ -33,9 +33,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from .config import number
-from .core import SnakeBatch, make_task_and_config, observation_structure
+from .core import TaskEnvBase
 from .physics import AUX_X, AUX_Y
-from .snake import RESET_INFO_KEYS, TRAIL_LENGTH, check_render_args
+from .snake import RESET_INFO_KEYS, TRAIL_LENGTH
 
 AUTORESET_MODES = {mode.value: mode for mode in AutoresetMode}
 
@@ -48,7 +48,7 @@ def _autoreset_mode(value) -> AutoresetMode:
     raise ValueError(f"autoreset_mode must be one of {sorted(AUTORESET_MODES)} or an AutoresetMode, got {value!r}")
 
 
-class SnakeVectorEnv(VectorEnv):
+class SnakeVectorEnv(TaskEnvBase, VectorEnv):
     """``num_envs`` independent :class:`SnakeEnv` copies of one task in (B, ...) arrays.
 
     Args:
@@ -76,43 +76,23 @@ class SnakeVectorEnv(VectorEnv):
             max_episode_steps = number("max_episode_steps", max_episode_steps, "steps, or None", minimum=0, integer=True)
         self.max_episode_steps = max_episode_steps
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
-        task_obj, config = make_task_and_config(task, kwargs)
-        self._batch = SnakeBatch(task_obj, config, self.num_envs)
-        for name, value in self._batch.env_attributes().items():
-            setattr(self, name, value)
-        check_render_args(self, render_mode, width, height)
-        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt)), "autoreset_mode": self.autoreset_mode}
-        self.step_info_keys = self._batch.step_info_keys
-
-        n, B = self.n_links, self.num_envs
-        self.single_action_space = spaces.Box(-1.0, 1.0, (n - 1,), np.float32)
+        self._build(task, self.num_envs, render_mode, width, height, kwargs)
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+        B = self.num_envs
+        self.single_action_space = spaces.Box(-1.0, 1.0, (self.n_links - 1,), np.float32)
         self.action_space = batch_space(self.single_action_space, B)
         self.single_observation_space = self._batch.single_observation_space
         self.observation_space = batch_space(self.single_observation_space, B)
-        self.observation_structure = observation_structure(n, self.params.include_position)
-
         self._steps = np.zeros(B, np.int64)
         self._autoreset = np.zeros(B, bool)
         self._trail = None  # (TRAIL_LENGTH, B, 2) ring of CM positions, only when rendering
         self._trail_len = np.zeros(B, np.int64)
-        self._renderer = None
-        self._has_reset = False
 
     # ------------------------------------------------------------------ properties
-    @property
-    def dt(self) -> float:
-        """Duration of one env step (s)."""
-        return self.params.dt
-
     @property
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of (q (B, n+2), u (B, 2)), see :attr:`SnakeEnv.state`."""
         return self._batch.q.copy(), self._batch.u.copy()
-
-    @property
-    def task_state(self) -> dict[str, np.ndarray]:
-        """The task's per-episode state (goal, command, path offset, ...), arrays of B rows."""
-        return self._batch.task_state
 
     def set_state(self, q, u):
         """Put all sub-envs in states q (B, n+2), u (B, 2) (task state kept); return the observations.
@@ -267,8 +247,7 @@ class SnakeVectorEnv(VectorEnv):
             start = int(self._trail_len[i]) - count
             order = np.arange(start, start + count) % TRAIL_LENGTH
             frames.append(self._renderer.draw(self._batch.q[i], self._trail[order, i] if count else None,
-                                              overlay=self.task.overlay(self.config, self._batch.task_state, i,
-                                                                       self._batch.q[i])))
+                                              overlay=self._overlay(i)))
         return tuple(frames)
 
     def close_extras(self, **kwargs):
