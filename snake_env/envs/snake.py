@@ -21,7 +21,7 @@ import numpy as np
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, RESET_INFO_KEYS
 from snake_env.tasks.forward import ForwardTask
 
-from .core import TaskEnvBase
+from .core import TaskEnvBase, check_actions
 from .physics import AUX_X, AUX_Y
 
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
@@ -73,11 +73,8 @@ class SnakeEnv(TaskEnvBase, gym.Env):
     def step(self, action):
         if not self._has_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
-        action = np.asarray(action) if not isinstance(action, np.ndarray) else action
-        if action.shape != self.action_space.shape:  # checked here so the message names the single shape
-            from .core import check_actions
-
-            check_actions(action, self.action_space.shape)
+        # checked here (not only in the batch) so that an error names the single env's shape
+        action = check_actions(action, self.action_space.shape)
         rewards, terminated, info = self._batch.step(action[None])
         info = self._first(info)
         if info["sim_failure"]:
