@@ -48,7 +48,7 @@ class LoadedPolicy:
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         if self.normalizer is None:
-            return np.asarray(obs, dtype=np.float32)
+            return obs if isinstance(obs, dict) else np.asarray(obs, dtype=np.float32)
         return self.normalizer.normalize_obs(obs)
 
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
@@ -118,6 +118,10 @@ def load_normalizer(path: Path, obs_shape: tuple):
         raise PolicyLoadError(f"{path} holds a {type(normalizer).__name__}, not VecNormalize statistics")
     normalizer.training = False
     normalizer.norm_reward = False
+    if isinstance(normalizer.obs_rms, dict):  # a Dict observation (goal tasks): one statistic per key
+        if obs_shape is not None:
+            raise PolicyLoadError(f"{path} normalizes Dict observations, the env gives a Box of shape {obs_shape}")
+        return normalizer
     mean_shape = tuple(np.shape(normalizer.obs_rms.mean)) if normalizer.norm_obs else obs_shape
     if mean_shape != tuple(obs_shape):
         raise PolicyLoadError(f"{path} normalizes observations of shape {mean_shape}, the env gives {tuple(obs_shape)}")
@@ -139,10 +143,19 @@ def load_policy(target, observation_space, action_space, config: dict | None = N
         raise PolicyLoadError(f"{files.model} holds a {algo} model but {files.config} says algo {config['algo']!r}")
     algo_cls = {"ppo": PPO, "sac": SAC}[algo]
     try:
-        model = algo_cls.load(files.model, device="cpu")
+        # an acting policy needs no replay buffer: a 1-slot plain one (HerReplayBuffer could not be
+        # rebuilt without the training env)
+        custom = {"replay_buffer_class": None, "replay_buffer_kwargs": {}, "buffer_size": 1} if algo == "sac" else None
+        model = algo_cls.load(files.model, device="cpu", custom_objects=custom)
     except Exception as exc:  # corrupt archives surface as many exception types
         raise PolicyLoadError(f"cannot load {algo} model {files.model}: {_first_line(exc)}") from None
-    if model.observation_space.shape != observation_space.shape:
+    from gymnasium import spaces
+
+    if isinstance(observation_space, spaces.Dict) or isinstance(model.observation_space, spaces.Dict):
+        if model.observation_space != observation_space:
+            raise PolicyLoadError(f"{files.model} expects observations {model.observation_space}, the env gives "
+                                  f"{observation_space} (another task or n_links?)")
+    elif model.observation_space.shape != observation_space.shape:
         raise PolicyLoadError(
             f"{files.model} expects observations of shape {model.observation_space.shape}, the env gives "
             f"{observation_space.shape} (another env or n_links?)")

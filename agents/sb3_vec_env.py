@@ -4,7 +4,10 @@ SB3 trains on a ``VecEnv`` whose finished sub-envs are reset in the same
 ``step`` call: the returned observation is already the new episode's, the
 last one goes to ``infos[i]["terminal_observation"]`` and a time-limit end is
 flagged by ``infos[i]["TimeLimit.truncated"]`` (so bootstrapping stays right).
-That is Gymnasium's ``AutoresetMode.SAME_STEP``, so the adapter runs the
+A Dict observation (goal tasks) is a dict of (B, ...) arrays and its terminal
+observation a dict of rows, as SB3's ``DictReplayBuffer`` / ``HerReplayBuffer``
+expect; ``env_method("compute_reward", ...)`` reaches the vector env's
+vectorized ``compute_reward``. That is Gymnasium's ``AutoresetMode.SAME_STEP``, so the adapter runs the
 vector env in that mode and only reshapes its outputs: one compiled physics
 call per step for all sub-envs, instead of SB3's ``DummyVecEnv`` loop over
 ``gym.Env`` copies.
@@ -28,7 +31,7 @@ from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 import snake_env  # noqa: F401  (registers the ids)
-from snake_env.envs.snake import RESET_INFO_KEYS, STEP_INFO_KEYS
+from snake_env.envs.snake import RESET_INFO_KEYS
 from snake_env.envs.vector import SnakeVectorEnv
 
 
@@ -64,6 +67,7 @@ class SnakeSB3VecEnv(VecEnv):
             raise ValueError("SnakeSB3VecEnv needs the vector env's autoreset_mode='SameStep' (SB3 resets finished "
                              f"envs in the same step), got {venv.unwrapped.autoreset_mode}")
         self.venv = venv
+        self.step_info_keys = venv.unwrapped.step_info_keys  # the task's
         self._actions: np.ndarray | None = None
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self.metadata = {**self.metadata, "render_fps": venv.metadata.get("render_fps")}
@@ -87,15 +91,15 @@ class SnakeSB3VecEnv(VecEnv):
         obs, rewards, terminated, truncated, info = self.venv.step(self._actions)
         self._actions = None
         dones = terminated | truncated
-        infos = self._split(info, STEP_INFO_KEYS)
+        infos = self._split(info, self.step_info_keys)
         time_limit = (truncated & ~terminated).tolist()
         for step_info, flag in zip(infos, time_limit):
             step_info["TimeLimit.truncated"] = flag  # as DummyVecEnv reports it, on every step
         if dones.any():
             final_info = info["final_info"]
-            final_values = {key: final_info[key] for key in STEP_INFO_KEYS}
+            final_values = {key: final_info[key] for key in self.step_info_keys}
             for i in np.flatnonzero(dones):
-                step_info = {key: final_values[key][i].item() for key in STEP_INFO_KEYS}
+                step_info = {key: final_values[key][i].item() for key in self.step_info_keys}
                 step_info["terminal_observation"] = info["final_obs"][i]
                 step_info["TimeLimit.truncated"] = time_limit[i]
                 self.reset_infos[i] = {key: infos[i][key] for key in RESET_INFO_KEYS}

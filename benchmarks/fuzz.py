@@ -67,9 +67,7 @@ def _round_down(x: float) -> float:
 
 def make_env(kwargs: dict, num_envs: int):
     """(vector env, sim_dt note) for a cell, or (None, refusal message)."""
-    from snake_env.envs.snake import (DEFAULT_JOINT_DAMPING, DEFAULT_JOINT_LIMIT, DEFAULT_LIMIT_DAMPING,
-                                      DEFAULT_LIMIT_STIFFNESS, DEFAULT_WHEEL_DAMPING, build_physics,
-                                      max_stable_sim_dt)
+    from snake_env.envs.config import PhysicsConfig, max_stable_sim_dt
     from snake_env.envs.vector import SnakeVectorEnv
 
     try:
@@ -79,10 +77,8 @@ def make_env(kwargs: dict, num_envs: int):
             return None, str(exc)
         refusal = str(exc)
     # the stability bound of these kwargs, from the same function the env's check uses
-    _, params, _ = build_physics(kwargs["n_links"], 1e-12, 1, kwargs["mass"], kwargs["length"], kwargs["inertia"],
-                                 DEFAULT_JOINT_DAMPING, DEFAULT_WHEEL_DAMPING, DEFAULT_JOINT_LIMIT,
-                                 DEFAULT_LIMIT_STIFFNESS, DEFAULT_LIMIT_DAMPING, kwargs["paper_model"], True,
-                                 max_torque=kwargs["max_torque"])
+    physical = {key: kwargs[key] for key in ("n_links", "mass", "length", "inertia", "paper_model", "max_torque")}
+    _, params = PhysicsConfig(sim_dt=1e-12, frame_skip=1, **physical).build()
     bound, _ = max_stable_sim_dt(params, kwargs["max_torque"])
     sim_dt = _round_down(bound)
     frame_skip = math.ceil(ENV_DT / sim_dt - 1e-9)

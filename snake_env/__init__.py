@@ -2,7 +2,9 @@
 
 Importing the package registers the environments (this module does nothing
 else): ``snake_env/Snake-v1`` (kwarg ``n_links``, default 5) and
-``snake_env/Snake{n}-v1`` for n in 3, 5, 8, 12, 20, 30.
+``snake_env/Snake{n}-v1`` for n in 3, 5, 8, 12, 20, 30 (running forward), and
+``-v0`` of the tasks ``SnakeCommand``, ``SnakeReach`` and ``SnakePath``
+(see :mod:`snake_env.registration`).
 """
 
 from snake_env.registration import register_envs

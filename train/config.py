@@ -51,6 +51,8 @@ _RESERVED_ALGO_ARGS = {"self", "policy", "env", "verbose", "tensorboard_log", "s
                        "_init_setup_model", "policy_kwargs", "stats_window_size"}
 # string values of these keys may be zoo-style schedules "lin_<float>"
 SCHEDULE_KEYS = ("learning_rate", "clip_range")
+# zoo-style names of SB3 replay buffers accepted for ``replay_buffer_class`` (off-policy algorithms)
+REPLAY_BUFFERS = ("ReplayBuffer", "DictReplayBuffer", "HerReplayBuffer")
 ACTIVATIONS = {"nn.ReLU": "ReLU", "nn.Tanh": "Tanh", "nn.ELU": "ELU", "nn.LeakyReLU": "LeakyReLU",
                "nn.SiLU": "SiLU", "nn.GELU": "GELU"}
 
@@ -269,7 +271,23 @@ def validate(config: dict) -> dict:
         value = config.get(key)
         if isinstance(value, str):
             parse_schedule(key, value)
+    if "replay_buffer_class" in config and config["replay_buffer_class"] not in (None, *REPLAY_BUFFERS):
+        raise ConfigError(f"replay_buffer_class must be one of {list(REPLAY_BUFFERS)}, got {config['replay_buffer_class']!r}")
+    if isinstance(config.get("replay_buffer_kwargs"), str):
+        parse_python_dict(config["replay_buffer_kwargs"], "replay_buffer_kwargs")
     return config
+
+
+def replay_buffer_class(name):
+    """The SB3 class of a zoo-style replay buffer name (RL Zoo: ``replay_buffer_class: HerReplayBuffer``)."""
+    import stable_baselines3
+    from stable_baselines3.common import buffers
+
+    if name is None or not isinstance(name, str):
+        return name
+    if name not in REPLAY_BUFFERS:
+        raise ConfigError(f"replay_buffer_class must be one of {list(REPLAY_BUFFERS)}, got {name!r}")
+    return getattr(stable_baselines3, name, None) or getattr(buffers, name)
 
 
 def parse_schedule(key: str, value):
@@ -312,7 +330,22 @@ def algo_kwargs(config: dict) -> dict:
     for key in SCHEDULE_KEYS:
         if key in kwargs:
             kwargs[key] = parse_schedule(key, kwargs[key])
+    if "replay_buffer_class" in kwargs:
+        kwargs["replay_buffer_class"] = replay_buffer_class(kwargs["replay_buffer_class"])
+    if isinstance(kwargs.get("replay_buffer_kwargs"), str):
+        kwargs["replay_buffer_kwargs"] = parse_python_dict(kwargs["replay_buffer_kwargs"], "replay_buffer_kwargs")
     return kwargs
+
+
+def policy_for(config: dict, observation_space) -> str:
+    """The configured policy, with SB3's ``MultiInputPolicy`` in place of ``MlpPolicy`` for a Dict
+    observation space (goal tasks), as SB3 requires."""
+    from gymnasium import spaces
+
+    policy = config["policy"]
+    if isinstance(observation_space, spaces.Dict) and policy == "MlpPolicy":
+        return "MultiInputPolicy"
+    return policy
 
 
 def torch_policy_kwargs(config: dict) -> dict:

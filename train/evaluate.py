@@ -5,6 +5,8 @@ Examples::
     snake-eval runs/Snake5-v1__ppo__s0__20260101-120000 --episodes 5 --json eval.json
     snake-eval runs/.../checkpoints/model_200000_steps.zip --plot cm.png --video snake.gif
     snake-eval --baseline serpenoid --env snake_env/Snake5-v1 --json serpenoid.json
+    snake-eval --baseline los --env snake_env/SnakePath5-v0 --json los.json
+    snake-eval --baseline steering --env snake_env/SnakeCommand5-v0
 
 The env id, env kwargs and VecNormalize statistics come from the run's
 ``config.yaml`` and the statistics file saved beside the model; the
@@ -12,7 +14,9 @@ statistics are applied with ``training=False, norm_reward=False`` and never
 updated. Rendering uses ``rgb_array`` only, so no display is needed.
 Metrics per episode: return, mean forward velocity (mean of
 ``info["x_velocity"]``, m/s, whole-snake CM), final distance from the
-origin (m), x displacement (m), length (steps).
+origin (m), x displacement (m), length (steps), and the task metrics of
+:mod:`train.task_metrics` (cost of transport for every task; success, goal
+distance, cross-track or tracking errors by task).
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ import numpy as np
 
 EXIT_ERROR = 2
 VIDEO_SUFFIXES = (".gif", ".mp4")
+# baseline controller -> the task it drives
+BASELINES = {"serpenoid": "forward", "los": "path", "steering": "command"}
 
 
 class EvalError(ValueError):
@@ -36,7 +42,9 @@ class EvalError(ValueError):
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="snake-eval", description="Evaluate a saved snake policy headlessly.")
     parser.add_argument("target", nargs="?", help="run directory or model .zip (omit with --baseline)")
-    parser.add_argument("--baseline", choices=["serpenoid"], help="evaluate a non-learned controller instead")
+    parser.add_argument("--baseline", choices=list(BASELINES),
+                        help="evaluate a non-learned controller instead: " +
+                             "; ".join(f"{name} ({task} task)" for name, task in BASELINES.items()))
     parser.add_argument("--env", dest="env_id", help="env id (required with --baseline; for a model it must match)")
     parser.add_argument("--episodes", type=int, default=5, help="number of episodes (default 5)")
     mode = parser.add_mutually_exclusive_group()
@@ -48,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--video", help="write the first episode as PATH.gif or PATH.mp4")
     parser.add_argument("--plot", help="write the CM trajectories as a PNG")
     parser.add_argument("--json", dest="json_path", help="write the metrics as JSON")
+    parser.add_argument("--env-kwarg", dest="env_kwargs", action="append", default=[], metavar="KEY=VALUE",
+                        help="set an env kwarg (value read as YAML), e.g. path_type=circle; repeatable; "
+                             "overrides the run's env_kwargs")
     parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default configs/serpenoid.yaml)")
     return parser
 
@@ -70,9 +81,13 @@ def make_env(env_id: str, env_kwargs: dict, render: bool):
 
 def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None, record_video=False):
     """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths, frames of episode 0)."""
+    from train.task_metrics import EpisodeRecorder
+
+    base = env.unwrapped
     results, paths, frames = [], [], []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
+        recorder = EpisodeRecorder(base.task.name, base.dt, base.task.weight(base.config), info)
         reset_controller()
         xy = [(info["x_position"], info["y_position"])]
         x0 = info["x_position"]
@@ -83,6 +98,7 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
             obs, reward, terminated, truncated, info = env.step(act(obs))
             total += float(reward)
             speeds.append(float(info["x_velocity"]))
+            recorder.add(info)
             xy.append((info["x_position"], info["y_position"]))
             steps += 1
             if record_video and episode == 0:
@@ -98,6 +114,8 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
             "x_displacement": float(info["x_position"] - x0),
             "length": steps,
             "sim_failure": bool(info.get("sim_failure", False)),
+            **{key: (None if isinstance(v, float) and not math.isfinite(v) else v)
+               for key, v in recorder.metrics().items()},
         })
         paths.append(np.asarray(xy))
     return results, paths, frames
@@ -115,6 +133,14 @@ def summarize(results: list[dict]) -> dict:
         "mean_distance": float(distances.mean()),
         "mean_length": float(np.mean([r["length"] for r in results])),
     }
+
+
+def print_task_metrics(task: str, metrics: dict) -> None:
+    units = {"success_rate": "", "mean_cost_of_transport": "", "mean_final_goal_distance": " m",
+             "mean_cross_track_error": " m", "mean_path_speed": " m/s", "mean_speed_error": " m/s",
+             "mean_yaw_rate_error": " rad/s"}
+    parts = [f"{key} = {'n/a' if value is None else f'{value:.4g}'}{units.get(key, '')}" for key, value in metrics.items()]
+    print(f"task {task}: " + ", ".join(parts))
 
 
 def print_table(title: str, results: list[dict], summary: dict) -> None:
@@ -165,7 +191,7 @@ def check_outputs(args) -> None:
     if args.baseline and args.target:
         raise EvalError("give either a run directory/model or --baseline, not both")
     if args.baseline and not args.env_id:
-        raise EvalError("--baseline serpenoid needs --env ID")
+        raise EvalError(f"--baseline {args.baseline} needs --env ID")
     if not args.baseline and not args.target:
         raise EvalError("give a run directory or model file (or --baseline serpenoid --env ID)")
 
@@ -205,11 +231,38 @@ def policy_actor(args):
     return env_id, env_kwargs, act, lambda: None, title, {"algo": loaded.algo, "model": str(files.model)}
 
 
+def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
+    """(gait, its straight-line speed (m/s) or None, n_links, max_torque, dt, include_position) for a task id:
+    the searched gait of the locomotion id ``snake_env/Snake{n}-v*`` with the same n (newest version)."""
+    import re
+
+    from agents.search import env_geometry, load_gaits
+    from agents.serpenoid import SerpenoidParams
+
+    n_links, max_torque, dt, include_position = env_geometry(env_id, dict(env_kwargs or {}))
+    gaits = load_gaits(path)
+    pattern = re.compile(rf"^snake_env/Snake{n_links}-v(\d+)$")
+    matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
+    if not matches:
+        raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (needed by the baseline on {env_id}; "
+                         f"run: python -m agents.search --env snake_env/Snake{n_links}-v1)")
+    entry = gaits[matches[-1][1]]
+    speed = (entry.get("search") or {}).get("mean_forward_velocity")
+    return (SerpenoidParams.from_dict(entry["params"]), speed, n_links, max_torque, dt, include_position)
+
+
 def serpenoid_actor(args):
     from agents.search import DEFAULT_OUTPUT, env_geometry, load_params
     from agents.serpenoid import SerpenoidController
 
     path = args.serpenoid_config or DEFAULT_OUTPUT
+    task = _task_of(args.env_id)
+    if task != BASELINES[args.baseline]:
+        raise EvalError(f"--baseline {args.baseline} drives the {BASELINES[args.baseline]} task, {args.env_id} is a "
+                        f"{task} task; use --baseline "
+                        f"{next((b for b, t in BASELINES.items() if t == task), '(none for this task)')}")
+    if args.baseline != "serpenoid":
+        return steered_actor(args, path)
     try:
         params, env_kwargs = load_params(args.env_id, path)
         n_links, max_torque, dt, include_position = env_geometry(args.env_id, env_kwargs)
@@ -221,12 +274,58 @@ def serpenoid_actor(args):
             {"algo": "serpenoid", "params": params.to_dict()})
 
 
+def _task_of(env_id: str) -> str:
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401
+
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as exc:
+        raise EvalError(f"unknown env id {env_id!r}: {_first_line(exc)}") from None
+    return spec.kwargs.get("task", "forward")
+
+
+def steered_actor(args, path):
+    """Liljebäck's line-of-sight path following (``los``) or the command-steered serpenoid (``steering``)."""
+    from agents.path_following import LineOfSightController, SteeringController
+
+    env_kwargs = parse_env_kwargs(args.env_kwargs)
+    try:
+        params, speed, n_links, max_torque, dt, include_position = gait_for_task(args.env_id, path, env_kwargs)
+        if speed is None:
+            raise ValueError(f"the gait for n_links={n_links} in {path} has no search.mean_forward_velocity")
+        cls = LineOfSightController if args.baseline == "los" else SteeringController
+        controller = cls(params, n_links, max_torque, dt, gait_speed=float(speed), include_position=include_position)
+    except ValueError as exc:
+        raise EvalError(_first_line(exc)) from None
+    title = f"{args.baseline} baseline (steered serpenoid {params}) on {args.env_id}"
+    return (args.env_id, env_kwargs, controller.act, controller.reset, title,
+            {"algo": args.baseline, "params": params.to_dict()})
+
+
+def parse_env_kwargs(items) -> dict:
+    import yaml
+
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise EvalError(f"--env-kwarg expects KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(value) if value.strip() else None
+        except yaml.YAMLError:
+            out[key.strip()] = value
+    return out
+
+
 def evaluate(args) -> dict:
     check_outputs(args)
     if args.baseline:
         env_id, env_kwargs, act, reset, title, meta = serpenoid_actor(args)
     else:
         env_id, env_kwargs, act, reset, title, meta = policy_actor(args)
+    env_kwargs = {**env_kwargs, **parse_env_kwargs(getattr(args, "env_kwargs", None))}
     if not args.deterministic:
         from stable_baselines3.common.utils import set_random_seed
 
@@ -238,10 +337,16 @@ def evaluate(args) -> dict:
         fps = env.metadata.get("render_fps", 25)
     finally:
         env.close()
+    from train.task_metrics import summarize_task
+
     summary = summarize(results)
+    task = _task_of(env_id)
+    task_summary = summarize_task(task, results)
     print_table(title, results, summary)
+    print_task_metrics(task, task_summary)
     report = {"env_id": env_id, "env_kwargs": env_kwargs, **meta, "deterministic": args.deterministic,
-              "seed": args.seed, "n_episodes": args.episodes, **summary, "episodes": results}
+              "seed": args.seed, "n_episodes": args.episodes, **summary, "task": task, **task_summary,
+              "episodes": results}
     if args.json_path:
         from train.atomic import atomic_write_text
 

@@ -85,7 +85,7 @@ def prepare(args) -> tuple[dict, Path, bool]:
 def build_model(config: dict, venv, verbose: int):
     algo_cls = cfg.algo_class(config["algo"])
     try:
-        return algo_cls(config["policy"], venv, seed=config["seed"], device="cpu", verbose=verbose,
+        return algo_cls(cfg.policy_for(config, venv.observation_space), venv, seed=config["seed"], device="cpu", verbose=verbose,
                         policy_kwargs=cfg.torch_policy_kwargs(config), **cfg.algo_kwargs(config))
     except (TypeError, ValueError, AssertionError) as exc:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

@@ -22,6 +22,7 @@ LINK_FRONT = np.array([154, 205, 50], np.float32)  # link n
 LINK1_MARK = np.array([200, 60, 50], np.float32)
 WHEEL = np.array([40, 40, 46], np.float32)
 JOINT = np.array([30, 60, 40], np.float32)
+OVERLAY = np.array([220, 120, 30], np.float32)  # task overlays: goal, path, command arrow
 
 
 def _capsule(canvas, p0, p1, radius, color):
@@ -113,8 +114,25 @@ class SnakeRenderer:
             if 0 <= row < self.height:
                 canvas[row, :] = AXIS if abs(y) < 1e-9 else GRID
 
-    def draw(self, q, trail=None) -> np.ndarray:
-        """Frame of state q; ``trail`` (K, 2) holds past CM positions (m), the last one the camera centre."""
+    def _overlay(self, canvas, overlay, center):
+        """Task overlays in world coordinates (m): ("polyline", (K, 2)), ("point", (2,)) or
+        ("arrow", (start (2,), end (2,)))."""
+        for kind, data in overlay:
+            if kind == "polyline":
+                _polyline(canvas, self.to_pixels(data, center), OVERLAY, thickness=2)
+            elif kind == "point":
+                p = self.to_pixels(data, center)
+                _capsule(canvas, p, p, max(3.0, 0.05 * self.scale), OVERLAY)
+            elif kind == "arrow":
+                start, end = (self.to_pixels(v, center) for v in data)
+                _capsule(canvas, start, end, 1.5, OVERLAY)
+                _capsule(canvas, end, end, 4.0, OVERLAY)
+            else:
+                raise ValueError(f"overlay kind must be one of ['polyline', 'point', 'arrow'], got {kind!r}")
+
+    def draw(self, q, trail=None, overlay=None) -> np.ndarray:
+        """Frame of state q; ``trail`` (K, 2) holds past CM positions (m), the last one the camera centre;
+        ``overlay`` is a task's list of (kind, data) drawn under the snake (see :meth:`_overlay`)."""
         q = np.asarray(q, np.float64)
         n = self.half_length.shape[0]
         theta = q[:n]
@@ -133,6 +151,8 @@ class SnakeRenderer:
         self._grid(canvas, center)
         if trail is not None and len(trail) > 1:
             _polyline(canvas, self.to_pixels(trail, center), TRAIL, thickness=3)
+        if overlay:
+            self._overlay(canvas, overlay, center)
         ends0 = self.to_pixels(cms - e * h[:, None], center)
         ends1 = self.to_pixels(cms + e * h[:, None], center)
         mids = self.to_pixels(cms, center)

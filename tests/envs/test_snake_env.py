@@ -223,4 +223,4 @@ def test_info_keys():
     assert set(reset_info) == {"x_position", "y_position", "distance_from_origin", "kinetic_energy"}
     info = env.step(env.action_space.sample())[4]
     assert set(info) == {"x_position", "y_position", "distance_from_origin", "x_velocity", "y_velocity",
-                         "reward_forward", "reward_ctrl", "kinetic_energy", "power", "sim_failure"}
+                         "reward_forward", "reward_ctrl", "kinetic_energy", "power", "actuator_power", "sim_failure"}

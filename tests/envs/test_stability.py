@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from snake_env.dynamics import compiled
 from snake_env.envs import physics
 from snake_env.envs.physics import AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_WORK
-from snake_env.envs.snake import SnakeEnv, max_stable_sim_dt
+from snake_env.envs.config import max_stable_sim_dt
+from snake_env.envs.snake import SnakeEnv
 from snake_env.envs.vector import SnakeVectorEnv
 
 KWARG_NAMES = ("sim_dt", "joint_limit", "max_torque", "mass", "length", "inertia", "energy_tolerance",
@@ -171,7 +172,7 @@ def test_joint_limit_holds_at_the_largest_accepted_torque(sim_dt):
 def test_refused_setting_names_the_argument_and_the_allowed_range():
     with pytest.raises(ValueError, match=r"sim_dt must be in \(0, [0-9.e-]+\] s .* got 0.01"):
         SnakeEnv(max_torque=100.0)
-    with pytest.raises(ValueError, match=r"joint_limit must be in \(0, 2.6180\]"):
+    with pytest.raises(ValueError, match=r"joint_limit must be .*<= 2.61799 \(rad, 150 deg at most"):
         SnakeEnv(joint_limit=3.0)
     with pytest.raises(ValueError, match="integrator must be one of"):
         SnakeEnv(integrator="euler")

@@ -116,5 +116,7 @@ def test_shipped_configs_are_valid(algo):
     for env_id in data:
         config = cfg.build_config(algo, env_id)
         kwargs = cfg.algo_kwargs(config)
-        assert 0.98 <= kwargs["gamma"] <= 0.9999
+        # sparse goal tasks use RL Zoo's goal-env discount (FetchReach: 0.95); the rest dense rewards
+        low = 0.95 if "Reach" in env_id and config.get("replay_buffer_class") == "HerReplayBuffer" else 0.98
+        assert low <= kwargs["gamma"] <= 0.9999
         cfg.torch_policy_kwargs(config)

@@ -1,0 +1,156 @@
+"""Steered serpenoid baselines for the path and command tasks.
+
+The cascaded controller of Liljebäck, Pettersen, Stavdahl and Gravdahl
+("Path following control of planar snake robots", 2011): an inner loop makes
+the joints track a serpenoid curve
+    phi_i^ref(t) = alpha sin(Phi(t) + (i-1) beta) + gamma,   dPhi/dt = omega,
+with a joint PD (the gait of ``configs/serpenoid.yaml``, family "pd"), and an
+outer loop steers the snake by the joint offset gamma, which turns it
+(measured on Snake5: gamma = +0.1 rad turns it left at ~0.9 rad/s):
+- :class:`LineOfSightController` (path task): the line-of-sight heading
+  theta_ref = psi - arctan(e / Delta) (psi the path tangent, e the cross-track
+  error, Delta the look-ahead distance), gamma = k_theta (theta_ref - theta_bar),
+  theta_bar the mean link angle;
+- :class:`SteeringController` (command task): theta_ref integrates the
+  commanded yaw rate, gamma = w_cmd / G + k_theta (theta_ref - theta_bar) with
+  G the measured turning gain (rad/s per rad of offset), and the frequency is
+  scaled by v_cmd / v_gait (with no-slip wheels the speed is proportional to
+  the gait frequency for one body shape).
+gamma is clipped to +-``max_offset``. Both read only the observation
+(documented layouts of the tasks), no gymnasium import; actions are torques
+in units of ``max_torque``, batched over a leading axis.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from agents.serpenoid import SerpenoidParams, joint_slices
+
+TURN_GAIN = 9.0  # rad/s of yaw rate per rad of joint offset, measured on Snake5 with its searched gait
+
+
+def wrap(angle):
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def mean_link_angle(obs: np.ndarray, n_links: int, include_position: bool) -> np.ndarray:
+    """theta_bar (rad, wrapped) from the physics observation: theta_1 from cos/sin, theta_k by summing the joint angles."""
+    start = 2 if include_position else 0
+    phi = obs[:, start:start + n_links - 1]
+    heading = obs[:, start + n_links - 1:start + n_links + 1]
+    theta1 = np.arctan2(heading[:, 1], heading[:, 0])
+    offsets = np.concatenate([np.zeros((obs.shape[0], 1)), np.cumsum(phi, axis=1)], axis=1)
+    return wrap(theta1 + offsets.mean(axis=1))
+
+
+class SteeredSerpenoid:
+    """The inner loop: a PD-tracked serpenoid whose phase is integrated (so the
+    frequency may change) and whose offset gamma steers."""
+
+    def __init__(self, params: SerpenoidParams, n_links: int, max_torque: float, dt: float, num_envs: int = 1,
+                 include_position: bool = False, gain: float = 0.3, lookahead: float = 0.6,
+                 max_offset: float = 0.15):
+        if params.family != "pd":
+            raise ValueError(f"the steered serpenoid needs a 'pd' gait (joint references), got family {params.family!r}")
+        for name, value in (("max_torque", max_torque), ("dt", dt), ("lookahead", lookahead),
+                            ("max_offset", max_offset)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        self.params = params
+        self.n_links = n_links
+        self.max_torque = float(max_torque)
+        self.dt = float(dt)
+        self.num_envs = num_envs
+        self.include_position = include_position
+        self.gain = float(gain)
+        self.lookahead = float(lookahead)
+        self.max_offset = float(max_offset)
+        self.phi_slice, self.rate_slice = joint_slices(n_links, include_position)
+        self.physics_size = 2 * n_links + 2 + (2 if include_position else 0)
+        self.phase = np.zeros(num_envs)
+
+    def reset(self, mask=None) -> None:
+        self.phase[(slice(None) if mask is None else np.asarray(mask, bool))] = 0.0
+
+    def gait_action(self, obs: np.ndarray, offset: np.ndarray, freq_scale: np.ndarray) -> np.ndarray:
+        p = self.params
+        omega = p.frequency * freq_scale
+        index = np.arange(self.n_links - 1)
+        angle = self.phase[:, None] + index[None, :] * p.phase_lag
+        ref = p.amplitude * np.sin(angle) + offset[:, None]
+        ref_rate = p.amplitude * omega[:, None] * np.cos(angle)
+        phi, phidot = obs[:, self.phi_slice], obs[:, self.rate_slice]
+        torque = p.kp * (ref - phi) + p.kd * (ref_rate - phidot)
+        self.phase += omega * self.dt
+        return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32)
+
+    def _batch(self, obs):
+        obs = np.asarray(obs, dtype=np.float64)
+        single = obs.ndim == 1
+        obs = np.atleast_2d(obs)
+        if obs.shape != (self.num_envs, self.physics_size + 4):
+            raise ValueError(f"obs must have shape ({self.num_envs}, {self.physics_size + 4}) (physics observation "
+                             f"+ 4 task entries), got {obs.shape}")
+        return obs, single
+
+
+class LineOfSightController(SteeredSerpenoid):
+    """Path task: gamma = kappa v / G + k_theta (theta_ref - theta_bar), theta_ref = psi - arctan(e / Delta).
+
+    The gait runs at ``speed_scale`` times its frequency (v ~ speed_scale * gait_speed);
+    the curvature feed-forward kappa v / G (G = :data:`TURN_GAIN`) is zero on a line,
+    where this is Liljebäck's LOS law. The path observation ends with e (m), cos and
+    sin of (psi - theta_bar), curvature kappa (1/m)."""
+
+    def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
+                 include_position: bool = False, gain: float = 0.1, lookahead: float = 3.0,
+                 max_offset: float = 0.25, speed_scale: float = 1.0):
+        super().__init__(params, n_links, max_torque, dt, num_envs, include_position, gain, lookahead, max_offset)
+        for name, value in (("gait_speed", gait_speed), ("speed_scale", speed_scale)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        self.speed = float(gait_speed) * float(speed_scale)
+        self.speed_scale = float(speed_scale)
+
+    def act(self, obs) -> np.ndarray:
+        obs, single = self._batch(obs)
+        error, curvature = obs[:, -4], obs[:, -1]
+        relative = np.arctan2(obs[:, -2], obs[:, -3])  # psi - theta_bar
+        heading_error = wrap(relative - np.arctan(error / self.lookahead))  # theta_ref - theta_bar
+        offset = np.clip(curvature * self.speed / TURN_GAIN + self.gain * heading_error,
+                         -self.max_offset, self.max_offset)
+        action = self.gait_action(obs, offset, np.full(self.num_envs, self.speed_scale))
+        return action[0] if single else action
+
+
+class SteeringController(SteeredSerpenoid):
+    """Command task: heading reference integrated from w_cmd, frequency scaled by v_cmd / ``gait_speed``.
+
+    The command observation ends with v_cmd (m/s), w_cmd (rad/s), filtered v, w."""
+
+    def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
+                 include_position: bool = False, gain: float = 0.3, max_offset: float = 0.15):
+        super().__init__(params, n_links, max_torque, dt, num_envs, include_position, gain, 1.0, max_offset)
+        if not (math.isfinite(gait_speed) and gait_speed > 0):
+            raise ValueError(f"gait_speed must be > 0 (m/s), got {gait_speed!r}")
+        self.gait_speed = float(gait_speed)
+        self.heading_ref = np.full(num_envs, np.nan)
+
+    def reset(self, mask=None) -> None:
+        super().reset(mask)
+        self.heading_ref[(slice(None) if mask is None else np.asarray(mask, bool))] = np.nan
+
+    def act(self, obs) -> np.ndarray:
+        obs, single = self._batch(obs)
+        heading = mean_link_angle(obs, self.n_links, self.include_position)
+        start = np.isnan(self.heading_ref)
+        self.heading_ref[start] = heading[start]
+        v_cmd, w_cmd = obs[:, -4], obs[:, -3]
+        error = wrap(self.heading_ref - heading)
+        offset = np.clip(w_cmd / TURN_GAIN + self.gain * error, -self.max_offset, self.max_offset)
+        action = self.gait_action(obs, offset, np.clip(v_cmd / self.gait_speed, 0.0, 2.0))
+        self.heading_ref = wrap(self.heading_ref + w_cmd * self.dt)
+        return action[0] if single else action

@@ -1,0 +1,266 @@
+"""The physical settings of a snake env as one typed config (dm_control's Physics half).
+
+:class:`PhysicsConfig` is the single place where the physical kwargs are named,
+given units and defaults, and validated: its field names are the env kwargs
+and the YAML ``env_kwargs`` keys, for every task, in the single and the vector
+env alike. Adding a setting is one field line here (plus, if the kernel needs
+it, one argument where :meth:`PhysicsConfig.build` fills
+:class:`~snake_env.envs.physics.PhysicsParams`).
+
+Validation is driven by each field's ``metadata`` (:func:`setting`): a bad
+value raises ``ValueError`` with one line naming the argument, the allowed
+values and the unit.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from snake_env.dynamics import SnakeModel
+from snake_env.dynamics.validation import check_n_links
+
+from .physics import PhysicsParams
+
+# Defaults (units in the field docs). One env step = sim_dt * frame_skip = 0.04 s, like Swimmer-v5.
+DEFAULT_SIM_DT = 0.01  # s, one RK4 step
+DEFAULT_FRAME_SKIP = 4  # RK4 steps per env step
+DEFAULT_MAX_TORQUE = 1.0  # N m, the paper's Table III torque amplitude
+DEFAULT_JOINT_DAMPING = 0.01  # N m s/rad, viscous joint friction
+DEFAULT_WHEEL_DAMPING = 0.1  # N s/m per wheel, rolling resistance
+DEFAULT_JOINT_LIMIT = math.pi / 2  # rad, limit on |phi_k|
+DEFAULT_LIMIT_STIFFNESS = 20.0  # N m/rad, least stiffness of the barrier beyond the limit
+DEFAULT_LIMIT_DAMPING = 0.2  # N m s/rad, damper beyond the limit (at the least stiffness)
+# With the joint's effective inertia I_eff ~ 0.015 kg m^2 (n = 5, paper links) the limit
+# rings at sqrt(k / I_eff) ~ 36 rad/s (omega dt = 0.36 per RK4 step) with damping ratio
+# ~0.2. A larger damper switches on a larger force jump c * phidot at the limit, which
+# RK4 resolves poorly at sim_dt = 0.01 s (measured energy-balance error grows ~15x at c = 1).
+# The barrier's stiffness k = max(joint_limit_stiffness, LIMIT_STIFFNESS_PER_TORQUE * max_torque)
+# (N m/rad): at k d = max_torque the joint is pushed 0.1 rad past the limit, and the
+# barrier's potential diverges before the fold, so it wins against any torque. Its damper
+# is scaled by sqrt(k / joint_limit_stiffness) so the damping ratio stays that of the kwargs.
+LIMIT_STIFFNESS_PER_TORQUE = 10.0  # 1/rad
+MAX_JOINT_LIMIT = math.radians(150.0)  # rad: leaves >= 20 deg of barrier before the fold (170 deg)
+INTEGRATORS = ("rk4_refined", "rk4")
+DEFAULT_INTEGRATOR = "rk4_refined"
+DEFAULT_ENERGY_TOLERANCE = 1e-2  # relative work-energy residual per env step
+DEFAULT_ERROR_TOLERANCE = 1e-3  # embedded RK4(3) estimate per substep, relative (see physics)
+DEFAULT_MAX_REFINEMENTS = 6  # substep halvings: down to sim_dt / 64
+ENERGY_FLOOR_PER_TORQUE = 1e-3  # J per N m: the residual test's energy floor is this * max_torque * 1 rad
+MAX_REFINEMENTS_LIMIT = 12
+# RK4's stability interval is about 2.79 on the negative real axis and 2.83 on the
+# imaginary axis; sim_dt must keep the stiffest rate of the setting inside it with margin.
+RK4_STABLE_RATE_STEP = 2.5
+GRAVITY = 9.81  # m/s^2, for the cost of transport only (the snake moves on a plane)
+
+
+def number(name, value, unit, *, minimum=None, strict=True, integer=False, maximum=None):
+    """A finite real scalar (int when ``integer``) within bounds, else ValueError naming ``name``."""
+    kind = numbers.Integral if integer else numbers.Real
+    bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum}"
+    if maximum is not None:
+        bound += f" and <= {maximum:g}"
+    what = f"{'an integer' if integer else 'a finite number'}{bound} ({unit})"
+    if isinstance(value, bool) or not isinstance(value, kind) or not math.isfinite(value):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    if minimum is not None and (value <= minimum if strict else value < minimum):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def flag(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def setting(default, unit, kind="real", *, minimum=None, strict=True, maximum=None, doc=""):
+    """A dataclass field whose metadata drives :func:`check_fields`.
+
+    kind: "real", "int", "bool", "optional_real" (None allowed), "per_link"
+    (scalar or length-n sequence, checked by :class:`SnakeModel`), "choice"
+    (``maximum`` then holds the allowed values) or "range" (a (low, high) pair).
+    """
+    return field(default=default, metadata=dict(unit=unit, kind=kind, minimum=minimum, strict=strict,
+                                                maximum=maximum, doc=doc))
+
+
+def check_value(name: str, value, meta: dict):
+    kind = meta["kind"]
+    if kind == "bool":
+        return flag(name, value)
+    if kind == "per_link":
+        return value
+    if kind == "choice":
+        if value not in meta["maximum"]:
+            raise ValueError(f"{name} must be one of {list(meta['maximum'])}, got {value!r}")
+        return value
+    if kind == "range":
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise ValueError(f"{name} must be a pair [low, high] ({meta['unit']}), got {value!r}")
+        low, high = (number(name, v, meta["unit"], minimum=meta["minimum"], strict=False) for v in value)
+        if low > high:
+            raise ValueError(f"{name} must be a pair [low, high] with low <= high ({meta['unit']}), got {value!r}")
+        return (low, high)
+    if kind == "optional_real" and value is None:
+        return None
+    unit = meta["unit"] + (", or None to disable" if kind == "optional_real" else "")
+    return number(name, value, unit, minimum=meta["minimum"], strict=meta["strict"], integer=kind == "int",
+                  maximum=meta["maximum"])
+
+
+def check_fields(obj) -> None:
+    """Validate and normalize every field of a (frozen) dataclass built with :func:`setting`."""
+    for f in fields(obj):
+        if f.metadata:
+            object.__setattr__(obj, f.name, check_value(f.name, getattr(obj, f.name), f.metadata))
+
+
+def split_kwargs(kwargs: dict, *owners) -> list[dict]:
+    """Split ``kwargs`` among dataclasses by field name; an unknown name -> one-line ValueError."""
+    parts = [{} for _ in owners]
+    names = [{f.name for f in fields(owner)} for owner in owners]
+    unknown = []
+    for key, value in kwargs.items():
+        for part, owned in zip(parts, names):
+            if key in owned:
+                part[key] = value
+                break
+        else:
+            unknown.append(key)
+    if unknown:
+        valid = sorted(set().union(*names))
+        raise ValueError(f"unknown argument(s) {sorted(unknown)}; valid arguments: {valid}")
+    return parts
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Physical and integration settings shared by every task (kwargs = YAML keys).
+
+    `paper_model=True` is the paper's model (section II): no dissipation and
+    no joint limits; it sets joint_damping = wheel_damping = 0 and
+    joint_limit = None, and rejects other values for them.
+    """
+
+    n_links: int = setting(5, "links", "int", minimum=1, doc="number of links n >= 2")
+    frame_skip: int = setting(DEFAULT_FRAME_SKIP, "RK4 steps per env step", "int", minimum=0,
+                              doc="RK4 steps per env step")
+    sim_dt: float = setting(DEFAULT_SIM_DT, "s", minimum=0.0, doc="RK4 step; env dt = sim_dt * frame_skip")
+    max_torque: float = setting(DEFAULT_MAX_TORQUE, "N m", minimum=0.0, doc="joint torque at action 1")
+    joint_damping: float = setting(DEFAULT_JOINT_DAMPING, "N m s/rad", minimum=0.0, strict=False,
+                                   doc="viscous joint damping")
+    wheel_damping: float = setting(DEFAULT_WHEEL_DAMPING, "N s/m", minimum=0.0, strict=False,
+                                   doc="rolling resistance per wheel")
+    joint_limit: float | None = setting(DEFAULT_JOINT_LIMIT, "rad, 150 deg at most: the barrier needs room before "
+                                        "links fold at 170 deg", "optional_real", minimum=0.0,
+                                        maximum=MAX_JOINT_LIMIT, doc="limit on |phi_k|; None disables")
+    joint_limit_stiffness: float = setting(DEFAULT_LIMIT_STIFFNESS, "N m/rad", minimum=0.0, strict=False,
+                                           doc="least barrier stiffness beyond the limit; raised to 10 * max_torque")
+    joint_limit_damping: float = setting(DEFAULT_LIMIT_DAMPING, "N m s/rad", minimum=0.0, strict=False,
+                                         doc="barrier damper at that least stiffness")
+    paper_model: bool = setting(False, "-", "bool", doc="the paper's model: no damping, no limits")
+    mass: float = setting(1.0, "kg", "per_link", doc="per-link mass (paper Table II)")
+    length: float = setting(0.2, "m", "per_link", doc="per-link length (paper Table II)")
+    inertia: float = setting(0.005, "kg m^2", "per_link", doc="per-link central inertia (paper Table II)")
+    exclude_current_positions_from_observation: bool = setting(True, "-", "bool",
+                                                               doc="leave the CM x, y out of the observation")
+    integrator: str = setting(DEFAULT_INTEGRATOR, "-", "choice", maximum=INTEGRATORS,
+                              doc='"rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4')
+    energy_tolerance: float = setting(DEFAULT_ENERGY_TOLERANCE, "relative work-energy residual", minimum=0.0,
+                                      maximum=1.0, doc="largest relative work-energy residual of an env step")
+    error_tolerance: float = setting(DEFAULT_ERROR_TOLERANCE, "relative local error per RK4 substep", minimum=0.0,
+                                     maximum=1.0, doc="tolerance of the embedded RK4(3) error estimate")
+    max_refinements: int = setting(DEFAULT_MAX_REFINEMENTS, "substep halvings", "int", minimum=0, strict=False,
+                                   maximum=MAX_REFINEMENTS_LIMIT, doc="substep halvings of a failing step")
+
+    def __post_init__(self):
+        object.__setattr__(self, "n_links", check_n_links(self.n_links))
+        check_fields(self)
+        if self.paper_model:
+            # Only the defaults may be overridden silently; anything else contradicts the flag.
+            conflicts = [name for name, default in (("joint_damping", DEFAULT_JOINT_DAMPING),
+                                                    ("wheel_damping", DEFAULT_WHEEL_DAMPING))
+                         if getattr(self, name) not in (default, 0.0)]
+            if self.joint_limit not in (None, DEFAULT_JOINT_LIMIT):
+                conflicts.append("joint_limit")
+            if conflicts:
+                raise ValueError(f"paper_model=True fixes joint_damping=0, wheel_damping=0 and joint_limit=None; "
+                                 f"do not also pass {', '.join(conflicts)}")
+            for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None)):
+                object.__setattr__(self, name, value)
+
+    @property
+    def dt(self) -> float:
+        """Duration of one env step (s)."""
+        return self.sim_dt * self.frame_skip
+
+    def build(self) -> tuple[SnakeModel, PhysicsParams]:
+        """The dynamics model and the compiled step's constants of these settings.
+
+        Settings that no refinement makes sound are refused here: sim_dt above the RK4
+        stability limit of the setting's stiffest rate (see :func:`stiffest_rates`)."""
+        model = SnakeModel(n_links=self.n_links, mass=self.mass, length=self.length, inertia=self.inertia,
+                           joint_damping=self.joint_damping, wheel_damping=self.wheel_damping)
+        m, h, inertia, c_joint, c_wheel = model.parameters(np.float64)
+        limit_stiffness, limit_damping = limit_barrier(self.joint_limit_stiffness, self.joint_limit_damping,
+                                                       self.max_torque)
+        refined = self.integrator == "rk4_refined"
+        params = PhysicsParams(
+            mass=m, half_length=h, inertia=inertia, joint_damping=c_joint, wheel_damping=c_wheel,
+            joint_limit=0.0 if self.joint_limit is None else self.joint_limit,  # the kernel reads <= 0 as "no limit"
+            limit_stiffness=limit_stiffness, limit_damping=limit_damping,
+            sim_dt=self.sim_dt, frame_skip=self.frame_skip,
+            include_position=not self.exclude_current_positions_from_observation,
+            energy_tolerance=self.energy_tolerance, energy_floor=ENERGY_FLOOR_PER_TORQUE * self.max_torque,
+            # "rk4": a plain fixed step, no error control (the guards still apply)
+            error_tolerance=self.error_tolerance if refined else math.inf,
+            max_refinements=self.max_refinements if refined else 0)
+        bound, rate_name = max_stable_sim_dt(params, self.max_torque)
+        if self.sim_dt > bound:
+            raise ValueError(f"sim_dt must be in (0, {bound:.3g}] s for these settings (the {rate_name} rate "
+                             f"{RK4_STABLE_RATE_STEP / bound:.3g} 1/s needs rate * sim_dt <= {RK4_STABLE_RATE_STEP} "
+                             f"for a stable RK4 step), got {self.sim_dt!r}")
+        return model, params
+
+
+def limit_barrier(joint_limit_stiffness, joint_limit_damping, max_torque):
+    """(stiffness (N m/rad), damping (N m s/rad)) of the joint-limit barrier for these kwargs."""
+    stiffness = max(joint_limit_stiffness, LIMIT_STIFFNESS_PER_TORQUE * max_torque)
+    damping = joint_limit_damping
+    if joint_limit_stiffness > 0.0:
+        damping *= math.sqrt(stiffness / joint_limit_stiffness)
+    return stiffness, damping
+
+
+def stiffest_rates(params: PhysicsParams, max_torque: float) -> dict[str, float]:
+    """The setting's fastest linear rates (1/s) at rest, which a stable RK4 step must resolve.
+
+    A joint's effective inertia is at least half the smaller central inertia of its two
+    links (the bound is reached by n = 2), I_j (kg m^2); against it act the joint and
+    limit dampers (rate c / I_j), the limit spring (sqrt(k / I_j)) and the torque
+    (sqrt(max_torque / (I_j * 1 rad)): the rate at which a joint from rest turns a
+    radian); the wheel dampers act on the link masses (c / m).
+    """
+    inertia_j = float(np.min(params.inertia)) / 2.0
+    rates = {
+        "joint damping": float(np.max(params.joint_damping, initial=0.0)) / inertia_j,
+        "wheel damping": float(np.max(params.wheel_damping)) / float(np.min(params.mass)),
+        "torque": math.sqrt(max_torque / inertia_j),
+    }
+    if params.joint_limit > 0.0:
+        rates["joint-limit damping"] = (params.limit_damping + float(np.max(params.joint_damping, initial=0.0))) / inertia_j
+        rates["joint-limit stiffness"] = math.sqrt(params.limit_stiffness / inertia_j)
+    return rates
+
+
+def max_stable_sim_dt(params: PhysicsParams, max_torque: float) -> tuple[float, str]:
+    """(largest accepted sim_dt (s), the rate that bounds it) for a setting."""
+    rates = stiffest_rates(params, max_torque)
+    name = max(rates, key=rates.get)
+    return (RK4_STABLE_RATE_STEP / rates[name] if rates[name] > 0.0 else math.inf), name

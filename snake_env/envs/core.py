@@ -1,0 +1,182 @@
+"""``SnakeBatch``: B snakes, their task, and the one place both envs step physics.
+
+The single env is a batch of one and the vector env a batch of B; both hold a
+:class:`SnakeBatch` and only add the Gymnasium API around it (scalars and a
+TimeLimit wrapper for the one, autoreset and batched info for the other).
+The batched physics call is :func:`snake_env.envs.physics.step_inplace`, here
+and nowhere else; a row's result does not depend on the batch it is in, so a
+vector env equals N single envs step by step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import numpy as np
+from gymnasium import spaces
+
+from snake_env.tasks import Task, task_class
+from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_reset_info, common_step_info
+
+from . import physics
+from .config import PhysicsConfig, number, split_kwargs
+from .physics import AUX_FAILED, AUX_X, AUX_Y
+
+
+def make_task_and_config(task, kwargs: dict) -> tuple[Task, PhysicsConfig]:
+    """Split env kwargs into the task's and the physics' (one-line error on an unknown name)."""
+    cls = task_class(task)
+    physics_kwargs, task_kwargs = split_kwargs(kwargs, PhysicsConfig, cls)
+    return cls(**task_kwargs), PhysicsConfig(**physics_kwargs)
+
+
+def observation_structure(n_links: int, include_position: bool) -> dict[str, int]:
+    """Sizes of the physics observation's blocks, in order (``skipped_*`` are not in the vector)."""
+    return {
+        "skipped_position": 0 if include_position else 2,
+        "position": 2 if include_position else 0,
+        "joint_angles": n_links - 1,
+        "heading": 2,
+        "generalized_speeds": 2,
+        "joint_rates": n_links - 1,
+    }
+
+
+def physics_observation_space(n_links: int, include_position: bool) -> spaces.Box:
+    size = physics.observation_size(n_links, include_position)
+    low = np.full(size, -np.inf)
+    high = np.full(size, np.inf)
+    start = (2 if include_position else 0) + n_links - 1
+    low[start:start + 2] = -1.0  # cos, sin of the heading
+    high[start:start + 2] = 1.0
+    return spaces.Box(low=low, high=high, dtype=np.float64)
+
+
+def check_actions(action, shape: tuple) -> np.ndarray:
+    """Actions as float64 clipped to [-1, 1]; wrong shape or NaN/inf -> ValueError."""
+    try:
+        a = np.array(action, dtype=np.float64)  # a copy: clipped in place below
+    except (TypeError, ValueError):
+        raise ValueError(f"action must be a real array of shape {shape} in [-1, 1], got {action!r}") from None
+    if a.shape != shape:
+        raise ValueError(f"action must have shape {shape} (one value in [-1, 1] per joint), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError("action must be finite (no NaN or inf); values outside [-1, 1] are clipped")
+    # minimum/maximum in place: several times cheaper than np.clip on small arrays
+    np.minimum(a, 1.0, out=a)
+    np.maximum(a, -1.0, out=a)
+    return a
+
+
+class SnakeBatch:
+    """State (B rows) of snakes doing one task, stepped by one compiled call."""
+
+    def __init__(self, task: Task, config: PhysicsConfig, num_envs: int):
+        self.task = task
+        self.config = config
+        self.model, self.params = config.build()
+        n, B = config.n_links, num_envs
+        self.num_envs = B
+        self.physics_observation_space = physics_observation_space(n, self.params.include_position)
+        self.single_observation_space = task.observation_space(config, self.physics_observation_space)
+        self.step_info_keys = COMMON_STEP_INFO_KEYS + task.step_info_keys
+        self.q = np.zeros((B, n + 2))
+        self.u = np.zeros((B, 2))
+        self.torques = np.zeros((B, n - 1))
+        self.physics_obs = np.zeros((B, self.params.obs_size))
+        self.aux = np.zeros((B, physics.AUX_SIZE))
+        self.task_state = task.init_state(B)
+
+    def observation(self):
+        """The task's observation of every row (fresh arrays)."""
+        obs = self.task.observe(self.config, self.physics_obs, self.q, self.aux, self.task_state)
+        if isinstance(obs, dict):
+            return {key: value.copy() for key, value in obs.items()}
+        return obs.copy()
+
+    def reset(self, mask: np.ndarray, rng: np.random.Generator) -> None:
+        """New episodes for the rows of ``mask``: start noise first, then the task's draws."""
+        rows = np.flatnonzero(mask)
+        noise = self.task.reset_noise(rng, rows.size, self.config.n_links)
+        q, u, obs, aux = physics.reset(self.params, noise)
+        self.q[rows], self.u[rows], self.physics_obs[rows], self.aux[rows] = q, u, obs, aux
+        self.task.reset(self.config, self.task_state, rows, rng, q, aux)
+
+    def set_state(self, q, u) -> None:
+        obs, aux = physics.observe(self.params, q, u)
+        self.q[:], self.u[:] = q, u
+        self.physics_obs[:], self.aux[:] = obs.reshape(self.physics_obs.shape), aux.reshape(self.aux.shape)
+
+    def reset_info(self) -> dict[str, np.ndarray]:
+        return common_reset_info(self.aux)
+
+    def step(self, actions) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,))."""
+        a = check_actions(actions, self.torques.shape)
+        np.multiply(a, self.config.max_torque, out=self.torques)
+        q_prev = self.q.copy()
+        cm_prev = self.aux[:, [AUX_X, AUX_Y]].copy()
+        physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux)
+        ctx = StepContext(action=a, torques=self.torques, q_prev=q_prev, q=self.q, u=self.u, aux=self.aux,
+                          cm_prev=cm_prev, dt=self.config.dt)
+        rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
+        info = {**common_step_info(ctx), **task_info}
+        failed = ctx.failed
+        if failed.any():
+            # A failed step was undone (the pre-step state is kept): it is not an outcome of
+            # the action, so every task's reward and reward terms are exactly 0 and it never
+            # terminates (the env truncates instead).
+            rewards = np.where(failed, 0.0, rewards)
+            terminated = terminated & ~failed
+            for key in info:
+                if key.startswith("reward_"):
+                    info[key] = np.where(failed, 0.0, info[key])
+        return rewards, terminated, {key: info[key] for key in self.step_info_keys}
+
+    def failure_reasons(self, rows: np.ndarray) -> list[str]:
+        """The distinct reasons (:data:`physics.FAILURE_REASONS`) of the failed ``rows`` of the last step."""
+        return sorted({physics.FAILURE_REASONS[int(code)] for code in self.aux[rows, AUX_FAILED]})
+
+    def env_attributes(self) -> dict:
+        """The settings exposed as env attributes (same names as the kwargs)."""
+        values = {f.name: getattr(self.config, f.name) for f in fields(self.config)}
+        values.update({f.name: getattr(self.task, f.name) for f in fields(self.task)})
+        values.update(model=self.model, params=self.params, task=self.task, config=self.config)
+        return values
+
+
+class TaskEnvBase:
+    """What the single and the vector env share: construction from ``task`` and kwargs
+    (physics config, task, rendering settings), attributes named as the kwargs, ``dt``."""
+
+    def _build(self, task, num_envs: int, render_mode, width, height, kwargs: dict) -> None:
+        task_obj, config = make_task_and_config(task, kwargs)
+        self._batch = SnakeBatch(task_obj, config, num_envs)
+        for name, value in self._batch.env_attributes().items():
+            setattr(self, name, value)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                             f"got {render_mode!r}")
+        self.render_mode = render_mode
+        self.width = number("width", width, "pixels", minimum=0, integer=True)
+        self.height = number("height", height, "pixels", minimum=0, integer=True)
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.dt))}
+        self.step_info_keys = self._batch.step_info_keys
+        self.observation_structure = observation_structure(config.n_links, self.params.include_position)
+        self._renderer = None
+        self._has_reset = False
+
+    @property
+    def dt(self) -> float:
+        """Duration of one env step (s)."""
+        return self.params.dt
+
+    @property
+    def task_state(self) -> dict[str, np.ndarray]:
+        """The task's per-episode state (goal, command, path offset, ...) as arrays of B rows
+        (one row for the single env)."""
+        return self._batch.task_state
+
+    def _overlay(self, row: int):
+        """The task's drawing for sub-env ``row`` (see :meth:`Task.overlay`)."""
+        return self.task.overlay(self.config, self._batch.task_state, row, self._batch.q[row])

@@ -1,0 +1,193 @@
+"""The ``Task`` half of dm_control's Physics/Task split.
+
+A task is a frozen dataclass whose fields are its kwargs (same names in YAML
+``env_kwargs``), validated through :func:`snake_env.envs.config.setting`
+metadata. It supplies only what differs between tasks, always for a batch of
+B snakes (the single env is a batch of one, so single and vector env share
+every line):
+
+- the starting-state noise and the goal / command / path draws at reset,
+- observation extras appended to the physics observation (or a Dict),
+- the reward terms (into ``info`` as ``reward_*``), termination and task info.
+
+Per-env task state (a goal, a command schedule, a path offset, ...) lives in
+a dict of (B, ...) arrays owned by the env, so the vector env equals N single
+envs given the same rows. Randomness comes only from the env's generator, at
+reset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+
+from snake_env.envs.config import GRAVITY, PhysicsConfig, check_fields, setting
+from snake_env.envs.physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_VY, AUX_WORK, AUX_X, AUX_Y
+
+DEFAULT_RESET_NOISE_SCALE = 0.1  # rad for the angles, m/s and rad/s for the speeds
+DEFAULT_CTRL_COST_WEIGHT = 1e-4  # per (N m / max_torque)^2, like Swimmer-v5
+
+# info of every task at every step, and at reset
+COMMON_STEP_INFO_KEYS = ("x_position", "y_position", "distance_from_origin", "x_velocity", "y_velocity",
+                         "kinetic_energy", "power", "actuator_power", "sim_failure")
+RESET_INFO_KEYS = ("x_position", "y_position", "distance_from_origin", "kinetic_energy")
+
+
+@dataclass
+class StepContext:
+    """What one batched physics step produced (rows = sub-envs).
+
+    action: (B, n-1) clipped actions; torques (N m); q_prev, q: (B, n+2) before /
+    after; u: (B, 2); aux: (B, AUX_SIZE) of :mod:`snake_env.envs.physics`;
+    cm_prev: (B, 2) whole-snake CM before the step (m); dt: env step (s).
+    """
+
+    action: np.ndarray
+    torques: np.ndarray
+    q_prev: np.ndarray
+    q: np.ndarray
+    u: np.ndarray
+    aux: np.ndarray
+    cm_prev: np.ndarray
+    dt: float
+
+    @property
+    def cm(self) -> np.ndarray:
+        return self.aux[:, [AUX_X, AUX_Y]]
+
+    @property
+    def failed(self) -> np.ndarray:
+        return self.aux[:, AUX_FAILED] != 0.0
+
+
+def mean_heading(q: np.ndarray, n_links: int) -> np.ndarray:
+    """Mean link angle theta_bar = (1/n) sum theta_k (rad), the snake's heading
+    (Liljebäck et al. 2011). The angles are not wrapped, so it is continuous."""
+    return np.mean(q[..., :n_links], axis=-1)
+
+
+def link_centers(config: PhysicsConfig, q: np.ndarray) -> np.ndarray:
+    """CMs of the links (n, 2) (m) of one state q: CM_{k+1} = CM_k + h_k e_k + h_{k+1} e_{k+1} (eq. 3)."""
+    n = config.n_links
+    h = 0.5 * np.broadcast_to(np.asarray(config.length, np.float64), (n,))
+    e = np.stack([np.cos(q[:n]), np.sin(q[:n])], axis=-1)
+    steps = e[:-1] * h[:-1, None] + e[1:] * h[1:, None]
+    return q[n:n + 2] + np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+
+
+def joint_angle_change(q_prev: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Change of phi_k = theta_{k+1} - theta_k over the step (rad), from the unwrapped angles."""
+    return np.diff(q, axis=-1)[..., :-2] - np.diff(q_prev, axis=-1)[..., :-2]
+
+
+def actuator_power(ctx: StepContext) -> np.ndarray:
+    """Absolute actuator power sum_k |T_k dphi_k| / dt (W). Torques are held over the
+    step, so T_k dphi_k is exactly the work integral of T_k phidot_k over the step;
+    it equals the integral of |T_k phidot_k| when phidot_k keeps its sign in the
+    step (0.04 s, short against the gaits' periods)."""
+    work = np.abs(ctx.torques * joint_angle_change(ctx.q_prev, ctx.q))
+    return np.sum(work, axis=-1) / ctx.dt
+
+
+def common_step_info(ctx: StepContext) -> dict[str, np.ndarray]:
+    aux = ctx.aux
+    return {
+        "x_position": aux[:, AUX_X].copy(),
+        "y_position": aux[:, AUX_Y].copy(),
+        "distance_from_origin": np.hypot(aux[:, AUX_X], aux[:, AUX_Y]),
+        "x_velocity": aux[:, AUX_VX].copy(),
+        "y_velocity": aux[:, AUX_VY].copy(),
+        "kinetic_energy": aux[:, AUX_KINETIC].copy(),
+        "power": aux[:, AUX_WORK] / ctx.dt,
+        "actuator_power": actuator_power(ctx),
+        "sim_failure": ctx.failed.copy(),
+    }
+
+
+def common_reset_info(aux: np.ndarray) -> dict[str, np.ndarray]:
+    return {
+        "x_position": aux[:, AUX_X].copy(),
+        "y_position": aux[:, AUX_Y].copy(),
+        "distance_from_origin": np.hypot(aux[:, AUX_X], aux[:, AUX_Y]),
+        "kinetic_energy": aux[:, AUX_KINETIC].copy(),
+    }
+
+
+def squared_norm(a: np.ndarray) -> np.ndarray:
+    """||a||^2 over the last axis; the same reduction for one action and for each row
+    of a batch, so the single and the vector env give bit-identical control costs."""
+    return np.sum(np.square(a), axis=-1)
+
+
+def box_with_extras(base: spaces.Box, low, high) -> spaces.Box:
+    """``base`` with extra entries of bounds ``low``/``high`` appended."""
+    return spaces.Box(low=np.concatenate([base.low, low]), high=np.concatenate([base.high, high]), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Task:
+    """Base of every task: the start-state noise and the hooks a task overrides.
+
+    Subclasses are frozen dataclasses; their docstring is the env's spec
+    (Gymnasium style). Class attributes: ``name`` (the ``task=`` value),
+    ``max_episode_steps`` (of the registration), ``step_info_keys`` (info
+    keys beyond :data:`COMMON_STEP_INFO_KEYS`), ``goal_env`` (Dict observation
+    with ``compute_reward``).
+    """
+
+    reset_noise_scale: float = setting(DEFAULT_RESET_NOISE_SCALE, "rad, m/s, rad/s", minimum=0.0, strict=False,
+                                       doc="half-width of the uniform start noise")
+
+    name: ClassVar[str] = ""
+    max_episode_steps: ClassVar[int] = 1000
+    step_info_keys: ClassVar[tuple[str, ...]] = ()
+    goal_env: ClassVar[bool] = False
+
+    def __post_init__(self):
+        check_fields(self)
+
+    # ------------------------------------------------------------------ spaces
+    def observation_space(self, config: PhysicsConfig, base: spaces.Box) -> spaces.Space:
+        """The single env's observation space given the physics part ``base``."""
+        return base
+
+    # ------------------------------------------------------------------ batched hooks
+    def init_state(self, num_envs: int) -> dict[str, np.ndarray]:
+        """Per-env task state arrays (B, ...), filled at reset."""
+        return {}
+
+    def reset_noise(self, rng: np.random.Generator, count: int, n_links: int) -> np.ndarray:
+        """Uniform start noise (count, n+2): link angles (rad), V_1 (m/s), thetadot_1 (rad/s)."""
+        s = self.reset_noise_scale
+        return rng.uniform(low=-s, high=s, size=(count, n_links + 2))
+
+    def reset(self, config: PhysicsConfig, state: dict, rows: np.ndarray, rng: np.random.Generator,
+              q: np.ndarray, aux: np.ndarray) -> None:
+        """Draw the task's per-env state for ``rows`` (after the start state q, aux of those rows)."""
+
+    def observe(self, config: PhysicsConfig, obs: np.ndarray, q: np.ndarray, aux: np.ndarray, state: dict) -> Any:
+        """Observation of every row from the physics observation ``obs`` (B, d)."""
+        return obs
+
+    def evaluate(self, config: PhysicsConfig, ctx: StepContext, state: dict
+                 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """(reward (B,), terminated (B,), task info) of a step; may update ``state``."""
+        raise NotImplementedError
+
+    def overlay(self, config: PhysicsConfig, state: dict, row: int, q: np.ndarray) -> list | None:
+        """What to draw for sub-env ``row`` in state ``q``: a list of (kind, data) in world
+        coordinates (m), kinds "polyline", "point", "arrow" (see :mod:`snake_env.envs.rendering`)."""
+        return None
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def total_mass(config: PhysicsConfig) -> float:
+        return float(np.sum(np.broadcast_to(np.asarray(config.mass, dtype=np.float64), (config.n_links,))))
+
+    @classmethod
+    def weight(cls, config: PhysicsConfig) -> float:
+        """m_total g (N), the cost of transport's normalizer."""
+        return cls.total_mass(config) * GRAVITY

@@ -1,0 +1,187 @@
+"""Run forward along +x: the task of ``snake_env/Snake{n}-v1``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from snake_env.envs.config import setting
+from snake_env.envs.physics import AUX_VX
+
+from .base import DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, squared_norm
+
+
+@dataclass(frozen=True)
+class ForwardTask(Task):
+    r"""An n-link wheeled snake robot on a plane, driven by joint torques, running along +x.
+
+    ## Description
+    The snake of Tavakoli Nia, Pishkenari and Meghdari ("A recursive approach
+    for the analysis of snake robots using Kane's equations"): n rigid links in
+    a chain, each with a passive wheel at its centre of mass that cannot slip
+    sideways. The n nonholonomic constraints leave only two degrees of freedom,
+    u = (V_1, thetadot_1) (eq. 2); every link's speed and rate follows from u
+    and the joint angles (eqs. 6-7). The joints are actuated; bending the body
+    against the wheels' constraints is what propels it, as in a real snake.
+    The goal is to move the snake's centre of mass as fast as possible along +x.
+
+    Physics is the O(n) recursive Kane formulation (eq. 8) integrated with
+    classical RK4 (`frame_skip` steps of `sim_dt` per env step, torques held
+    constant). Beyond the paper's model, by default: viscous joint damping,
+    viscous wheel rolling resistance (so speed is bounded and the task is well
+    posed) and joint limits. `paper_model=True` removes all three.
+
+    Joint limits. Beyond |phi_k| > joint_limit a barrier torque acts on the
+    joint: with the excess d = |phi_k| - joint_limit (rad) and the room
+    R = 170 deg - joint_limit before adjacent links fold onto each other,
+    T = -sign(phi_k) k d / (1 - d/R) - c phidot_k (N m). Its stiffness is
+    k = max(joint_limit_stiffness, 10 * max_torque) N m/rad (the full torque
+    pushes the joint only ~0.1 rad past the limit), its damping
+    c = joint_limit_damping * sqrt(k / joint_limit_stiffness) N m s/rad (the
+    damping ratio of the kwargs). Its potential diverges at the fold, so no
+    torque and no momentum folds the snake; it acts through the constraints,
+    so |phi_k| can exceed the limit by some tenths of a radian (the barrier
+    is stiff there; the checked integration below resolves it).
+
+    Checked integration (`integrator="rk4_refined"`, the default). Every env
+    step is checked: all values finite; the embedded RK4(3) error estimate of
+    every substep within `error_tolerance`; the work-energy balance
+    |K1 - K0 - W| <= `energy_tolerance` * (max(K0, K1) + 1e-3 J/(N m) * max_torque)
+    (K kinetic energy before/after, W the work of all loads over the step, J);
+    no link or joint turning more than 1 rad per RK4 substep (a runaway);
+    no wrapped |phi_k| at or beyond 170 deg (a fold: links through each
+    other, not physical). A sub-env whose step fails is integrated again
+    from its pre-step state with the substep halved, up to `max_refinements`
+    times (only that sub-env; the others keep their result); if it still
+    fails, the step is a simulation failure (see Episode End).
+    `integrator="rk4"`: plain fixed-step RK4 with the same check, a failing
+    step fails at once (no refinement). Settings whose stiffest rate at rest
+    (joint and limit damping against the smallest joint inertia, limit
+    stiffness, torque, wheel damping) is beyond RK4's stability at `sim_dt`
+    are refused with a ValueError that gives the largest accepted `sim_dt`
+    (`snake_env.envs.config.max_stable_sim_dt`). The physics (limits,
+    integration, failures) is the same for every task.
+
+    Link 1 is the link whose CM is (x, y) in eq. 1; link k+1 is attached to
+    the +e_k end of link k, so with theta = 0 link n is the one furthest along +x.
+
+    ## Action Space
+    `Box(-1, 1, (n_links - 1,), float32)`. Action k is the torque of joint k,
+    in units of `max_torque`: T_k = max_torque * a_k (N m), acting +T_k on
+    link k+1 and -T_k on link k (eq. 11). Out-of-range values are clipped;
+    NaN/inf or a wrong shape raise `ValueError`. (The same for every task.)
+
+    ## Observation Space
+    `Box(-inf, inf, (2 n + 2,), float64)` by default (cos/sin bounded by 1);
+    `(2 n + 4,)` with `exclude_current_positions_from_observation=False`.
+    `env.observation_structure` gives the block sizes. In order:
+
+    | Num           | Observation                                  | Unit  |
+    |---------------|----------------------------------------------|-------|
+    | excluded (0-1)| x, y of the whole snake's mass-weighted CM   | m     |
+    | 0 .. n-2      | joint angles phi_k = theta_{k+1} - theta_k, wrapped to (-pi, pi] | rad |
+    | n-1           | cos(theta_1), heading of link 1              | -     |
+    | n             | sin(theta_1)                                 | -     |
+    | n+1           | V_1, speed of link 1's CM along link 1 (eq. 2) | m/s |
+    | n+2           | thetadot_1, rate of link 1 (eq. 2)           | rad/s |
+    | n+3 .. 2n+1   | joint rates phidot_k = omega_{k+1} - omega_k (eq. 7) | rad/s |
+
+    (Indices shift by 2 when the position is included.) x, y are always in
+    `info` as `x_position`, `y_position`. Other tasks append their extras to
+    this vector (the "physics observation").
+
+    ## Rewards
+    reward = forward_reward - ctrl_cost, with
+    - forward_reward = `forward_reward_weight` * v_x, where v_x is the x-velocity
+      of the mass-weighted centre of mass of the *whole* snake, measured as its
+      displacement over the env step divided by dt = sim_dt * frame_skip
+      (Swimmer-v5 measures it at the front tip, which rewards wagging the tip).
+    - ctrl_cost = `ctrl_cost_weight` * ||a||^2 with a the clipped action.
+    `info` has `reward_forward` and `reward_ctrl` (= -ctrl_cost).
+
+    ## Starting State
+    theta_k ~ U(-s, s) (rad) for every link, V_1 ~ U(-s, s) (m/s),
+    thetadot_1 ~ U(-s, s) (rad/s), s = `reset_noise_scale`; the snake is
+    placed so its whole CM is at the origin. A perfectly straight snake is
+    singular (torques cannot change its forward speed), the noise moves it off.
+    All randomness comes from `self.np_random`. (The same for every task.)
+
+    ## Episode End
+    - Termination: never (`terminated` is always False).
+    - Truncation: after 1000 steps (`max_episode_steps` of the registration),
+      or at once on a simulation failure (a step that fails the check above
+      even at the finest substep: non-finite, error estimate, energy balance,
+      runaway speed or fold): the step is then undone, the pre-step
+      observation (finite, the last valid state) returned with reward exactly
+      0 (every `reward_*` term 0), `info["sim_failure"]` is True and a
+      `RuntimeWarning` names the reason (a simulator failure is not an
+      outcome of the task, so it truncates rather than terminates; every task).
+
+    ## Info
+    Every step (every task): `x_position`, `y_position`, `distance_from_origin`
+    (m, whole CM), `x_velocity`, `y_velocity` (m/s, whole CM over the step),
+    `kinetic_energy` (J, eq. 22), `power` (W, mean power of all loads over the
+    step: actuators, damping, limits; dK/dt), `actuator_power` (W, sum_k
+    |T_k dphi_k| / dt, for the cost of transport), `sim_failure` (bool); here
+    also `reward_forward`, `reward_ctrl`. Reset: `x_position`, `y_position`,
+    `distance_from_origin`, `kinetic_energy`.
+
+    ## Arguments
+    `gym.make("snake_env/Snake5-v1", **kwargs)`; all are plain scalars so they
+    can come from YAML. Physical arguments (every task, `PhysicsConfig`):
+
+    | Parameter | Default | Description |
+    |-----------|---------|-------------|
+    | `n_links` | 5 | number of links n >= 2 |
+    | `frame_skip` | 4 | RK4 steps per env step |
+    | `sim_dt` | 0.01 | RK4 step (s); env dt = sim_dt * frame_skip = 0.04 s |
+    | `max_torque` | 1.0 | joint torque at action 1 (N m), paper Table III |
+    | `exclude_current_positions_from_observation` | True | leave CM x, y out of obs |
+    | `joint_damping` | 0.01 | viscous joint damping (N m s/rad) |
+    | `wheel_damping` | 0.1 | rolling resistance per wheel (N s/m) |
+    | `joint_limit` | pi/2 | limit on abs(phi_k) (rad), in (0, 150 deg]; None disables |
+    | `joint_limit_stiffness` | 20.0 | least barrier stiffness beyond the limit (N m/rad); raised to 10 * max_torque |
+    | `joint_limit_damping` | 0.2 | barrier damper at that least stiffness (N m s/rad) |
+    | `paper_model` | False | True: joint_damping = wheel_damping = 0, no limits (the paper's model) |
+    | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
+    | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
+    | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |
+    | `error_tolerance` | 1e-3 | tolerance of the embedded RK4(3) error estimate per substep (relative) |
+    | `max_refinements` | 6 | substep halvings of a failing step (finest sim_dt / 64) |
+    | `render_mode` | None | "rgb_array" or "human" |
+    | `width`, `height` | 480, 480 | frame size (pixels) |
+    | `reset_noise_scale` | 0.1 | half-width of the uniform start noise (rad, m/s, rad/s) |
+
+    This task's arguments:
+
+    | Parameter | Default | Description |
+    |-----------|---------|-------------|
+    | `forward_reward_weight` | 1.0 | weight of v_x (per m/s) |
+    | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
+
+    ## Version History
+    * v1: joint limit is a barrier scaled with max_torque (was a 20 N m/rad linear
+      spring that strong torques overcame); checked integration with per-sub-env
+      refinement; runaway and fold detection (`sim_failure` no longer only for
+      non-finite values); reward 0 on a failed step; kwargs `integrator`,
+      `energy_tolerance`, `error_tolerance`, `max_refinements`; settings RK4
+      cannot step stably and `joint_limit` > 150 deg are refused. The env is
+      one task (`ForwardTask`) of the shared single and vector env; `info`
+      gains `actuator_power`.
+    * v0: initial version.
+    """
+
+    forward_reward_weight: float = setting(1.0, "per m/s", doc="weight of v_x")
+    ctrl_cost_weight: float = setting(DEFAULT_CTRL_COST_WEIGHT, "per unit action^2", minimum=0.0, strict=False,
+                                      doc="weight of ||a||^2")
+
+    name = "forward"
+    step_info_keys = ("reward_forward", "reward_ctrl")
+
+    def evaluate(self, config, ctx: StepContext, state):
+        reward_forward = self.forward_reward_weight * ctx.aux[:, AUX_VX]
+        ctrl_cost = self.ctrl_cost_weight * squared_norm(ctx.action)
+        reward = reward_forward - ctrl_cost
+        terminated = np.zeros(reward.shape[0], bool)
+        return reward, terminated, {"reward_forward": reward_forward, "reward_ctrl": -ctrl_cost}

@@ -1,0 +1,194 @@
+"""Follow a path: a line, a circle or a sine (``snake_env/SnakePath{n}-v0``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from snake_env.envs.config import setting
+
+from .base import DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, box_with_extras, mean_heading, squared_norm
+
+PATH_TYPES = ("line", "circle", "sine")
+_NEWTON_STEPS = 4  # projection onto the sine: Newton steps from the previous foot point
+
+
+def _wrap(angle):
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@dataclass(frozen=True)
+class PathTask(Task):
+    r"""Follow a planar path with the snake's centre of mass: a straight line, a circle or a sine.
+
+    ## Description
+    The snake of `snake_env/Snake{n}-v1` (same physics, actions, start state;
+    CM at the origin, heading near +x) follows a path given in its start
+    frame, shifted sideways by a cross-track offset d = +-`initial_offset`
+    (sign drawn at reset) so that the snake starts off the path:
+    - "line": y = d, travelled along +x;
+    - "circle": radius `radius`, centre (0, d + radius), travelled
+      counter-clockwise from (0, d) (heading +x there);
+    - "sine": y = d + `amplitude` sin(2 pi x / `wavelength`), along +x.
+    The cross-track error e (m) is the signed distance from the whole CM
+    to its closest path point, positive to the left of the direction of
+    travel; the along-track progress s (m) is the arc length of that point.
+    The heading is the mean link angle theta_bar (Liljebäck et al. 2011).
+
+    ## Action Space
+    As `snake_env/Snake{n}-v1`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
+
+    ## Observation Space
+    `Box(-inf, inf, (2 n + 6,), float64)`: the physics observation of
+    `Snake{n}-v1` (2 n + 2 entries), then:
+
+    | Num | Observation | Unit |
+    |-----|-------------|------|
+    | 2n+2 | e, cross-track error | m |
+    | 2n+3 | cos(psi - theta_bar), path tangent psi relative to the heading | - |
+    | 2n+4 | sin(psi - theta_bar) | - |
+    | 2n+5 | curvature of the path at the closest point (left turn > 0) | 1/m |
+
+    ## Rewards
+    reward = `progress_weight` * ds/dt - `cross_track_weight` * |e| - `ctrl_cost_weight` * ||a||^2,
+    ds/dt the along-track speed over the step (m/s). `info`: `reward_progress`,
+    `reward_cross_track`, `reward_ctrl`, `cross_track_error` (e, m), `path_speed` (ds/dt, m/s).
+
+    ## Starting State
+    As `Snake{n}-v1`; the offset sign is drawn from the env's generator.
+
+    ## Episode End
+    - Termination: when |e| > `max_cross_track_error` (m).
+    - Truncation: after 1000 steps (40 s), or on a simulator failure.
+
+    ## Arguments
+    The physical arguments of `Snake{n}-v1`, `reset_noise_scale`, and:
+
+    | Parameter | Default | Description |
+    |-----------|---------|-------------|
+    | `path_type` | "line" | "line", "circle" or "sine" |
+    | `initial_offset` | 0.5 | start cross-track offset magnitude (m) |
+    | `radius` | 1.5 | circle radius (m) |
+    | `amplitude`, `wavelength` | 0.5, 8.0 | sine shape (m) |
+    | `progress_weight` | 1.0 | per m/s of along-track speed |
+    | `cross_track_weight` | 1.0 | per m of abs(e) |
+    | `max_cross_track_error` | 2.0 | termination distance (m) |
+    | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    path_type: str = setting("line", "-", "choice", maximum=PATH_TYPES, doc="line, circle or sine")
+    initial_offset: float = setting(0.5, "m", minimum=0.0, strict=False, doc="start cross-track offset")
+    radius: float = setting(1.5, "m", minimum=0.0, doc="circle radius")
+    amplitude: float = setting(0.5, "m", minimum=0.0, strict=False, doc="sine amplitude")
+    wavelength: float = setting(8.0, "m", minimum=0.0, doc="sine wavelength")
+    progress_weight: float = setting(1.0, "per m/s", doc="weight of the along-track speed")
+    cross_track_weight: float = setting(1.0, "per m", minimum=0.0, strict=False, doc="weight of abs(e)")
+    max_cross_track_error: float = setting(2.0, "m", minimum=0.0, doc="termination distance")
+    ctrl_cost_weight: float = setting(DEFAULT_CTRL_COST_WEIGHT, "per unit action^2", minimum=0.0, strict=False,
+                                      doc="weight of ||a||^2")
+
+    name = "path"
+    step_info_keys = ("reward_progress", "reward_cross_track", "reward_ctrl", "cross_track_error", "path_speed")
+
+    def observation_space(self, config, base):
+        return box_with_extras(base, np.array([-np.inf, -1.0, -1.0, -np.inf]), np.array([np.inf, 1.0, 1.0, np.inf]))
+
+    def init_state(self, num_envs):
+        # offset d (m); foot: the closest point's parameter (x for line/sine, polar angle for the circle)
+        return {"offset": np.zeros(num_envs), "foot": np.zeros(num_envs), "error": np.zeros(num_envs),
+                "tangent": np.zeros(num_envs), "curvature": np.zeros(num_envs)}
+
+    # ------------------------------------------------------------------ geometry
+    def project(self, p: np.ndarray, offset: np.ndarray, foot_guess: np.ndarray):
+        """Closest path points of CMs p (B, 2): (foot parameter, signed cross-track error e (m),
+        tangent angle psi (rad), curvature (1/m))."""
+        x, y = p[:, 0], p[:, 1]
+        if self.path_type == "line":
+            return x.copy(), y - offset, np.zeros_like(x), np.zeros_like(x)
+        if self.path_type == "circle":
+            cy = offset + self.radius
+            angle = np.arctan2(y - cy, x)
+            # left of a counter-clockwise circle is inside it
+            error = self.radius - np.hypot(x, y - cy)
+            return angle, error, angle + 0.5 * np.pi, np.full_like(x, 1.0 / self.radius)
+        k = 2.0 * np.pi / self.wavelength
+        a = self.amplitude
+        xf = foot_guess.copy()
+        for _ in range(_NEWTON_STEPS):
+            # minimize (xf - x)^2 + (f(xf) - y)^2, f = d + a sin(k xf)
+            f = offset + a * np.sin(k * xf)
+            f1 = a * k * np.cos(k * xf)
+            f2 = -a * k * k * np.sin(k * xf)
+            grad = (xf - x) + (f - y) * f1
+            hess = 1.0 + f1 * f1 + (f - y) * f2
+            xf = xf - grad / np.where(hess > 0.1, hess, 1.0 + f1 * f1)
+        f = offset + a * np.sin(k * xf)
+        f1 = a * k * np.cos(k * xf)
+        f2 = -a * k * k * np.sin(k * xf)
+        tangent = np.arctan(f1)
+        error = (y - f) * np.cos(tangent) - (x - xf) * np.sin(tangent)
+        curvature = f2 / (1.0 + f1 * f1) ** 1.5
+        return xf, error, tangent, curvature
+
+    def arc_length_change(self, foot_prev, foot):
+        """Along-track distance between two foot parameters (m)."""
+        if self.path_type == "line":
+            return foot - foot_prev
+        if self.path_type == "circle":
+            return self.radius * _wrap(foot - foot_prev)
+        k = 2.0 * np.pi / self.wavelength
+        slope = self.amplitude * k * np.cos(k * 0.5 * (foot + foot_prev))  # midpoint rule
+        return (foot - foot_prev) * np.sqrt(1.0 + slope * slope)
+
+    # ------------------------------------------------------------------ task hooks
+    def reset(self, config, state, rows, rng, q, aux):
+        from snake_env.envs.physics import AUX_X, AUX_Y
+
+        sign = np.where(rng.uniform(size=rows.size) < 0.5, -1.0, 1.0)
+        state["offset"][rows] = sign * self.initial_offset
+        start = aux[:, [AUX_X, AUX_Y]]
+        guess = start[:, 0] if self.path_type == "sine" else np.zeros(rows.size)
+        foot, error, tangent, curvature = self.project(start, state["offset"][rows], guess)
+        state["foot"][rows], state["error"][rows] = foot, error
+        state["tangent"][rows], state["curvature"][rows] = tangent, curvature
+
+    def observe(self, config, obs, q, aux, state):
+        relative = state["tangent"] - mean_heading(q, config.n_links)
+        extras = np.stack([state["error"], np.cos(relative), np.sin(relative), state["curvature"]], axis=-1)
+        return np.concatenate([obs, extras], axis=1)
+
+    def evaluate(self, config, ctx: StepContext, state):
+        foot_prev = state["foot"].copy()
+        foot, error, tangent, curvature = self.project(ctx.cm, state["offset"], foot_prev)
+        path_speed = self.arc_length_change(foot_prev, foot) / ctx.dt
+        state["foot"][:], state["error"][:], state["tangent"][:], state["curvature"][:] = (
+            foot, error, tangent, curvature)
+        reward_progress = self.progress_weight * path_speed
+        reward_cross_track = -self.cross_track_weight * np.abs(error)
+        ctrl_cost = self.ctrl_cost_weight * squared_norm(ctx.action)
+        reward = reward_progress + reward_cross_track - ctrl_cost
+        terminated = np.abs(error) > self.max_cross_track_error
+        info = {"reward_progress": reward_progress, "reward_cross_track": reward_cross_track,
+                "reward_ctrl": -ctrl_cost, "cross_track_error": error.copy(), "path_speed": path_speed}
+        return reward, terminated, info
+
+    def path_points(self, offset: float, around: np.ndarray, span: float = 6.0) -> np.ndarray:
+        """Points (K, 2) of the path near ``around`` (m), for drawing."""
+        if self.path_type == "circle":
+            angles = np.linspace(0.0, 2.0 * math.pi, 121)
+            return np.stack([self.radius * np.cos(angles), offset + self.radius * (1.0 + np.sin(angles))], axis=-1)
+        x = np.linspace(around[0] - span, around[0] + span, 241)
+        y = np.full_like(x, offset)
+        if self.path_type == "sine":
+            y = y + self.amplitude * np.sin(2.0 * np.pi * x / self.wavelength)
+        return np.stack([x, y], axis=-1)
+
+    def overlay(self, config, state, row, q):
+        from .base import link_centers
+
+        return [("polyline", self.path_points(float(state["offset"][row]), link_centers(config, q).mean(axis=0)))]

@@ -1,0 +1,259 @@
+"""The task ids (SnakeCommand, SnakeReach, SnakePath): checkers, determinism,
+vector env == single envs, argument checks, GoalEnv compute_reward, registration."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import snake_env  # noqa: F401
+from snake_env.registration import REGISTERED_N_LINKS, TASK_IDS, registered_ids
+from snake_env.tasks import TASKS
+
+# (id, kwargs) of every new task variant, on small snakes to keep the tests fast
+CASES = [
+    ("snake_env/SnakeCommand5-v0", {}),
+    ("snake_env/SnakeReach5-v0", {}),
+    ("snake_env/SnakeReach3-v0", {"reward_type": "dense"}),
+    ("snake_env/SnakePath5-v0", {"path_type": "line"}),
+    ("snake_env/SnakePath3-v0", {"path_type": "circle"}),
+    ("snake_env/SnakePath5-v0", {"path_type": "sine"}),
+]
+IDS = [f"{env_id.split('/')[1]}-{'-'.join(map(str, kw.values())) or 'default'}" for env_id, kw in CASES]
+
+
+@pytest.mark.parametrize("env_id, kwargs", CASES, ids=IDS)
+def test_gymnasium_and_sb3_checkers_pass(env_id, kwargs):
+    env = gym.make(env_id, render_mode="rgb_array", **kwargs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", message=".*observation space (minimum|maximum) value is")
+        check_env(env.unwrapped, skip_render_check=False)
+        sb3_check_env(env.unwrapped, warn=True)
+    env.close()
+
+
+def test_every_family_is_registered_for_every_n_with_its_task_settings():
+    ids = registered_ids()
+    for prefix, task, version, steps, goal in TASK_IDS:
+        cls = TASKS[task]
+        assert (cls.max_episode_steps, cls.goal_env) == (steps, goal), f"registration row of {task} disagrees"
+        for n in REGISTERED_N_LINKS:
+            spec = gym.spec(f"snake_env/{prefix}{n}-v{version}")
+            assert spec.kwargs == {"task": task, "n_links": n}
+            assert spec.max_episode_steps == steps
+            assert spec.vector_entry_point == "snake_env.envs.vector:SnakeVectorEnv"
+        assert ids[f"snake_env/{prefix}-v{version}"] == {"task": task}
+    env = gym.make("snake_env/SnakePath-v0", n_links=7)
+    assert env.action_space.shape == (6,) and env.observation_space.shape == (20,)
+
+
+def _rollout(env, seed, steps=60):
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        flat = np.concatenate([np.ravel(v) for v in obs.values()]) if isinstance(obs, dict) else obs
+        out.append(np.concatenate([flat, [reward, terminated, truncated], [float(v) for v in info.values()]]))
+        if terminated or truncated:
+            break
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("env_id, kwargs", CASES, ids=IDS)
+def test_deterministic_under_seed(env_id, kwargs):
+    a = _rollout(gym.make(env_id, **kwargs), 3)
+    b = _rollout(gym.make(env_id, **kwargs), 3)
+    c = _rollout(gym.make(env_id, **kwargs), 4)
+    assert np.array_equal(a, b)
+    assert a.shape != c.shape or not np.array_equal(a, c)
+
+
+def _row(obs, i):
+    return {k: v[i] for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
+
+
+def _assert_obs_equal(a, b):
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for key in a:
+            assert np.array_equal(a[key], b[key]), key
+    else:
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("env_id, kwargs", CASES, ids=IDS)
+def test_vector_env_equals_single_envs_step_by_step(env_id, kwargs):
+    B, steps = 3, 40
+    vec = gym.make_vec(env_id, num_envs=B, vectorization_mode="vector_entry_point", autoreset_mode="Disabled",
+                       **kwargs)
+    obs, _ = vec.reset(seed=11)
+    singles = [gym.make(env_id, **kwargs) for _ in range(B)]
+    q, u = vec.unwrapped.state
+    for i, env in enumerate(singles):
+        env.reset(seed=100 + i)  # a different draw, overwritten by the vector env's row i below
+        for key, value in vec.unwrapped.task_state.items():
+            env.unwrapped.task_state[key][0] = value[i]
+        _assert_obs_equal(env.unwrapped.set_state(q[i], u[i]), _row(obs, i))
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, B) + singles[0].action_space.shape)
+    for a in actions:
+        obs, rewards, terminated, truncated, info = vec.step(a)
+        for i, env in enumerate(singles):
+            s_obs, s_reward, s_term, s_trunc, s_info = env.step(a[i])
+            _assert_obs_equal(s_obs, _row(obs, i))
+            assert s_reward == rewards[i] and s_term == terminated[i] and s_trunc == truncated[i]
+            for key in vec.unwrapped.step_info_keys:
+                assert s_info[key] == info[key][i], key
+        if (terminated | truncated).any():
+            break
+
+
+@pytest.mark.parametrize("env_id, kwargs", CASES, ids=IDS)
+def test_vector_env_of_one_reproduces_the_single_env_with_the_same_seed(env_id, kwargs):
+    env = gym.make(env_id, **kwargs)
+    vec = gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", **kwargs)
+    obs, _ = env.reset(seed=5)
+    v_obs, _ = vec.reset(seed=5)
+    _assert_obs_equal(obs, _row(v_obs, 0))
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        a = rng.uniform(-1, 1, env.action_space.shape)
+        obs, reward, *_ = env.step(a)
+        v_obs, v_reward, *_ = vec.step(a[None])
+        _assert_obs_equal(obs, _row(v_obs, 0))
+        assert reward == v_reward[0]
+
+
+@pytest.mark.parametrize("env_id, kwargs, name", [
+    ("snake_env/SnakeReach5-v0", {"reward_type": "shaped"}, "reward_type"),
+    ("snake_env/SnakeReach5-v0", {"distance_threshold": -0.1}, "distance_threshold"),
+    ("snake_env/SnakeReach5-v0", {"goal_distance_range": (2.0, 1.0)}, "goal_distance_range"),
+    ("snake_env/SnakeReach5-v0", {"terminate_on_success": "yes"}, "terminate_on_success"),
+    ("snake_env/SnakePath5-v0", {"path_type": "spiral"}, "path_type"),
+    ("snake_env/SnakePath5-v0", {"radius": 0.0}, "radius"),
+    ("snake_env/SnakePath5-v0", {"forward_reward_weight": 1.0}, "forward_reward_weight"),
+    ("snake_env/SnakeCommand5-v0", {"speed_range": (0.1,)}, "speed_range"),
+    ("snake_env/SnakeCommand5-v0", {"command_period": float("nan")}, "command_period"),
+    ("snake_env/SnakeCommand5-v0", {"max_torque": -1.0}, "max_torque"),
+    ("snake_env/SnakeCommand5-v0", {"task": "dance"}, "task"),
+])
+def test_bad_kwargs_raise_one_line_errors_naming_the_argument(env_id, kwargs, name):
+    for make in (lambda: gym.make(env_id, **kwargs),
+                 lambda: gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", **kwargs)):
+        with pytest.raises(ValueError, match=name) as info:
+            make()
+        assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("reward_type", ["sparse", "dense"])
+def test_compute_reward_on_a_batch_equals_the_step_rewards(reward_type):
+    env = gym.make("snake_env/SnakeReach5-v0", reward_type=reward_type, distance_threshold=0.5,
+                   goal_distance_range=(0.3, 0.6))
+    achieved, desired, rewards, infos = [], [], [], []
+    rng = np.random.default_rng(0)
+    for seed in range(4):
+        env.reset(seed=seed)
+        for _ in range(80):
+            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, 4))
+            achieved.append(obs["achieved_goal"])
+            desired.append(obs["desired_goal"])
+            rewards.append(reward)
+            infos.append(info)
+            if terminated or truncated:
+                break
+    rewards = np.array(rewards)
+    batch = env.unwrapped.compute_reward(np.array(achieved), np.array(desired), np.array(infos))
+    assert batch.shape == rewards.shape
+    assert np.array_equal(batch, rewards)
+    if reward_type == "sparse":
+        assert set(np.unique(rewards)) <= {-1.0, 0.0} and (rewards == 0.0).any() and (rewards == -1.0).any()
+        successes = np.array([i["is_success"] for i in infos])
+        assert np.array_equal(successes, rewards == 0.0)
+    # the vector env's compute_reward (the one SB3's HerReplayBuffer calls) agrees
+    vec = gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                       reward_type=reward_type, distance_threshold=0.5)
+    assert np.array_equal(vec.unwrapped.compute_reward(np.array(achieved), np.array(desired), None), rewards)
+
+
+def test_reach_terminates_on_success_and_reports_it():
+    env = gym.make("snake_env/SnakeReach5-v0")
+    obs, _ = env.reset(seed=0)
+    goal = obs["desired_goal"]
+    q, u = env.unwrapped.state
+    assert 0.5 <= np.linalg.norm(goal) <= 1.5
+    # move the snake so that its CM sits on the goal: the next step succeeds and terminates
+    q[-2:] += goal - obs["achieved_goal"]
+    env.unwrapped.set_state(q, np.zeros(2))
+    obs, reward, terminated, truncated, info = env.step(np.zeros(4))
+    assert info["is_success"] and terminated and reward == 0.0 and info["goal_distance"] < 0.1
+
+
+def test_command_is_resampled_every_period_within_its_ranges():
+    env = gym.make("snake_env/SnakeCommand5-v0", command_period=1.0, speed_range=(0.2, 0.4),
+                   yaw_rate_range=(-0.3, -0.1))
+    obs, _ = env.reset(seed=0)
+    commands = [obs[-4:-2].copy()]
+    for _ in range(75):  # 3 s of 0.04 s steps
+        obs, *_ = env.step(np.zeros(4))
+        commands.append(obs[-4:-2].copy())
+    commands = np.array(commands)
+    changes = np.flatnonzero(np.any(np.diff(commands, axis=0) != 0, axis=1)) + 1
+    assert changes.tolist() == [25, 50, 75]
+    assert (commands[:, 0] >= 0.2).all() and (commands[:, 0] <= 0.4).all()
+    assert (commands[:, 1] >= -0.3).all() and (commands[:, 1] <= -0.1).all()
+
+
+@pytest.mark.parametrize("path_type", ["line", "circle", "sine"])
+def test_cross_track_error_is_the_signed_distance_to_the_closest_path_point(path_type):
+    env = gym.make("snake_env/SnakePath5-v0", path_type=path_type, initial_offset=0.4)
+    task = env.unwrapped.task
+    signs = set()
+    rng = np.random.default_rng(0)
+    for seed in range(4):
+        obs, info = env.reset(seed=seed)
+        offset = env.unwrapped.task_state["offset"][0]
+        assert abs(offset) == 0.4
+        signs.add(np.sign(offset))
+        for step in range(40):
+            cm = np.array([info["x_position"], info["y_position"]])
+            # brute force: the distance to a dense sampling of the path
+            x = np.linspace(cm[0] - 3, cm[0] + 3, 600001)
+            if path_type == "circle":
+                a = np.linspace(-np.pi, np.pi, 600001)
+                points = np.stack([task.radius * np.cos(a), offset + task.radius * (1 + np.sin(a))], axis=-1)
+            else:
+                y = offset + (task.amplitude * np.sin(2 * np.pi * x / task.wavelength) if path_type == "sine" else 0 * x)
+                points = np.stack([x, y], axis=-1)
+            nearest = np.min(np.hypot(*(points - cm).T))
+            assert abs(obs[-4]) == pytest.approx(nearest, abs=1e-4)
+            if step == 0:  # the CM starts at the origin, on the side opposite to the offset
+                assert np.sign(obs[-4]) == -np.sign(offset)
+            obs, _, _, _, info = env.step(rng.uniform(-1, 1, 4))
+    assert signs == {-1.0, 1.0}
+
+
+def test_path_progress_along_a_line_is_the_x_speed():
+    env = gym.make("snake_env/SnakePath5-v0", path_type="line")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        _, reward, _, _, info = env.step(rng.uniform(-1, 1, 4))
+        assert info["path_speed"] == pytest.approx(info["x_velocity"], rel=1e-12, abs=1e-12)
+        assert info["cross_track_error"] == pytest.approx(info["y_position"] - env.unwrapped.task_state["offset"][0])
+        assert reward == pytest.approx(info["reward_progress"] + info["reward_cross_track"] + info["reward_ctrl"])
+
+
+@pytest.mark.parametrize("env_id, kwargs", CASES, ids=IDS)
+def test_rendering_draws_the_task_overlay(env_id, kwargs):
+    env = gym.make(env_id, render_mode="rgb_array", **kwargs)
+    env.reset(seed=0)
+    frame = env.render()
+    from snake_env.envs.rendering import OVERLAY
+
+    assert frame.shape == (480, 480, 3)
+    # the goal / path / command arc is drawn in the overlay colour
+    assert np.any(np.all(frame == OVERLAY.astype(np.uint8), axis=-1))
