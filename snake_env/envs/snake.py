@@ -40,7 +40,7 @@ MAX_JOINT_LIMIT = math.radians(150.0)  # rad: leaves >= 20 deg of barrier before
 INTEGRATORS = ("rk4_refined", "rk4")
 DEFAULT_INTEGRATOR = "rk4_refined"
 DEFAULT_ENERGY_TOLERANCE = 1e-2  # relative work-energy residual per env step
-DEFAULT_ERROR_TOLERANCE = 1e-3  # embedded RK4(3) estimate per substep, relative (see physics)
+DEFAULT_ERROR_TOLERANCE = 1e-2  # RK4 embedded local-error estimate per substep, relative (see physics)
 DEFAULT_MAX_REFINEMENTS = 6  # substep halvings: down to sim_dt / 64
 ENERGY_FLOOR_PER_TORQUE = 1e-3  # J per N m: the residual test's energy floor is this * max_torque * 1 rad
 MAX_REFINEMENTS_LIMIT = 12
@@ -289,7 +289,10 @@ class SnakeEnv(gym.Env):
     is stiff there; the checked integration below resolves it).
 
     Checked integration (`integrator="rk4_refined"`, the default). Every env
-    step is checked: all values finite; the work-energy balance
+    step is checked: all values finite; the embedded error estimate of RK4
+    with its FSAL stage, dt/6 |k4 - k5| per substep, within `error_tolerance`
+    times 1 rad for the angles and times |u_i| + 1 (m/s, rad/s) for u; the
+    work-energy balance
     |K1 - K0 - W| <= `energy_tolerance` * (max(K0, K1) + 1e-3 J/(N m) * max_torque)
     (K kinetic energy before/after, W the work of all loads over the step, J);
     no link or joint turning more than 1 rad per RK4 substep (a runaway);
@@ -395,6 +398,7 @@ class SnakeEnv(gym.Env):
     | `render_mode` | None | "rgb_array" or "human" |
     | `width`, `height` | 480, 480 | frame size (pixels) |
     | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
+    | `error_tolerance` | 1e-2 | tolerance of RK4's embedded local-error estimate per substep (relative) |
     | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |
     | `max_refinements` | 6 | substep halvings of a failing step (finest sim_dt / 64) |
 
@@ -403,7 +407,7 @@ class SnakeEnv(gym.Env):
       spring that strong torques overcame); checked integration with per-sub-env
       refinement; runaway and fold detection (`sim_failure` no longer only for
       non-finite values); reward 0 on a failed step; kwargs `integrator`,
-      `energy_tolerance`, `max_refinements`; settings RK4 cannot step stably and
+      `error_tolerance`, `energy_tolerance`, `max_refinements`; settings RK4 cannot step stably and
       `joint_limit` > 150 deg are refused.
     * v0: initial version.
     """
