@@ -190,6 +190,8 @@ def markdown(rows: list[dict], meta: dict) -> str:
                      f"{'yes' if r['paper_model'] else 'no'} | {r['sim_dt']:.2g} | {r['env_steps']:,} | "
                      f"{r['sim_failures']:,} | {r['leaked']} | {_fmt(r['residual_median'])} | "
                      f"{_fmt(r['residual_max'])} | {r['steps_per_s']:,.0f} | {reasons} |")
+    if meta.get("notes"):
+        lines += ["", "## Notes", ""] + [f"- {note}" for note in meta["notes"]]
     if refused:
         lines += ["", "## Refused settings", "",
                   "| n | T (N m) | L (m) | m (kg) | paper | reason |", "|---|---|---|---|---|---|"]
@@ -206,7 +208,13 @@ def parse_args(argv):
     parser.add_argument("--quick", action="store_true", help="a few cells, 64 envs x 20 steps: checks that it runs")
     parser.add_argument("--only", default="", help="run only cells whose kwargs text contains this (e.g. \"'n_links': 5,\")")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--note", action="append", default=[], metavar="TEXT",
+                        help="a line for the report's Notes section (e.g. the machine's load); repeatable")
     parser.add_argument("--json", metavar="PATH", help="write the rows as JSON")
+    parser.add_argument("--from-json", metavar="PATH",
+                        help="render the report from a saved --json (with --steps-per-cell, --num-envs and --wall-s "
+                             "of that run) instead of running")
+    parser.add_argument("--wall-s", type=float, default=0.0, help="with --from-json: the saved run's wall time (s)")
     parser.add_argument("--markdown", metavar="PATH", help="write the report (docs/reliability.md)")
     args = parser.parse_args(argv)
     if args.steps_per_cell < 1 or args.num_envs < 2:
@@ -218,6 +226,17 @@ def main(argv=None) -> int:
     from snake_env.atomic import atomic_write_text as write_text
 
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    if args.from_json:
+        with open(args.from_json) as f:
+            rows = json.load(f)
+        meta = {"command": f"python -m benchmarks.fuzz --steps-per-cell {args.steps_per_cell} --num-envs "
+                           f"{args.num_envs} --json {args.from_json}",
+                "steps_per_cell": args.steps_per_cell, "num_envs": args.num_envs, "wall_s": args.wall_s,
+                "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load": "shared machine",
+                "notes": args.note}
+        if args.markdown:
+            write_text(args.markdown, markdown(rows, meta))
+        return 1 if sum(r.get("leaked", 0) for r in rows) else 0
     cells = list(matrix())
     if args.only:
         cells = [c for c in cells if args.only in repr(c)]
@@ -238,7 +257,7 @@ def main(argv=None) -> int:
     meta = {"command": "python -m benchmarks.fuzz " + " ".join(sys.argv[1:] if argv is None else argv),
             "steps_per_cell": steps, "num_envs": num_envs, "wall_s": time.perf_counter() - start,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-            "load": "load average at the end %.1f (shared machine)" % os.getloadavg()[0]}
+            "load": "load average at the end %.1f (shared machine)" % os.getloadavg()[0], "notes": args.note}
     if args.markdown:
         write_text(args.markdown, markdown(rows, meta))
     leaks = sum(r.get("leaked", 0) for r in rows)

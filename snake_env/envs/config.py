@@ -47,7 +47,7 @@ MAX_JOINT_LIMIT = math.radians(150.0)  # rad: leaves >= 20 deg of barrier before
 INTEGRATORS = ("rk4_refined", "rk4")
 DEFAULT_INTEGRATOR = "rk4_refined"
 DEFAULT_ENERGY_TOLERANCE = 1e-2  # relative work-energy residual per env step
-DEFAULT_ERROR_TOLERANCE = 1e-3  # embedded RK4(3) estimate per substep, relative (see physics)
+DEFAULT_ERROR_TOLERANCE = 1e-2  # RK4 embedded local-error estimate per substep, relative (see physics)
 DEFAULT_MAX_REFINEMENTS = 6  # substep halvings: down to sim_dt / 64
 ENERGY_FLOOR_PER_TORQUE = 1e-3  # J per N m: the residual test's energy floor is this * max_torque * 1 rad
 MAX_REFINEMENTS_LIMIT = 12
@@ -175,7 +175,7 @@ class PhysicsConfig:
     energy_tolerance: float = setting(DEFAULT_ENERGY_TOLERANCE, "relative work-energy residual", minimum=0.0,
                                       maximum=1.0, doc="largest relative work-energy residual of an env step")
     error_tolerance: float = setting(DEFAULT_ERROR_TOLERANCE, "relative local error per RK4 substep", minimum=0.0,
-                                     maximum=1.0, doc="tolerance of the embedded RK4(3) error estimate")
+                                     maximum=1.0, doc="tolerance of RK4's embedded local-error estimate per substep")
     max_refinements: int = setting(DEFAULT_MAX_REFINEMENTS, "substep halvings", "int", minimum=0, strict=False,
                                    maximum=MAX_REFINEMENTS_LIMIT, doc="substep halvings of a failing step")
 

@@ -119,7 +119,7 @@ class PhysicsParams:
     include_position: bool
     energy_tolerance: float = 1e-2
     energy_floor: float = 1e-3
-    error_tolerance: float = 1e-3
+    error_tolerance: float = 1e-2
     max_refinements: int = 6
 
     @property

@@ -45,8 +45,10 @@ class ForwardTask(Task):
     is stiff there; the checked integration below resolves it).
 
     Checked integration (`integrator="rk4_refined"`, the default). Every env
-    step is checked: all values finite; the embedded RK4(3) error estimate of
-    every substep within `error_tolerance`; the work-energy balance
+    step is checked: all values finite; the embedded error estimate of RK4
+    with its FSAL stage, dt/6 |k4 - k5| per substep, within `error_tolerance`
+    times 1 rad for the angles and times |u_i| + 1 (m/s, rad/s) for u; the
+    work-energy balance
     |K1 - K0 - W| <= `energy_tolerance` * (max(K0, K1) + 1e-3 J/(N m) * max_torque)
     (K kinetic energy before/after, W the work of all loads over the step, J);
     no link or joint turning more than 1 rad per RK4 substep (a runaway);
@@ -147,7 +149,7 @@ class ForwardTask(Task):
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
     | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
     | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |
-    | `error_tolerance` | 1e-3 | tolerance of the embedded RK4(3) error estimate per substep (relative) |
+    | `error_tolerance` | 1e-2 | tolerance of RK4's embedded local-error estimate per substep (relative) |
     | `max_refinements` | 6 | substep halvings of a failing step (finest sim_dt / 64) |
     | `render_mode` | None | "rgb_array" or "human" |
     | `width`, `height` | 480, 480 | frame size (pixels) |
