@@ -1,10 +1,10 @@
-"""Search of serpenoid-gait parameters per env id (numpy only).
+"""Search of serpenoid-gait parameters per env id (CMA-ES from the ``cma`` package).
 
 Both gait families of :mod:`agents.serpenoid` are searched: uniform random
-samples in a box, then a few generations of a (mu, lambda) evolution
-strategy around the best (a simple CMA-ES stand-in with a shrinking
-isotropic step in box-normalized coordinates). A whole population is one
-batched vector env (one gait per sub-env), so a generation is one rollout.
+samples in a box, then a few generations of CMA-ES (Hansen's ``cma``,
+bounded to the box by its ``BoundTransform``) started from the best random
+gait, in box-normalized coordinates. A whole population is one batched
+vector env (one gait per sub-env), so a generation is one rollout.
 Every gait is scored on a few random starts; the best few of each family
 are re-scored on many full-length episodes and the best mean is written to ``configs/serpenoid.yaml`` under the env id.
 
@@ -107,24 +107,38 @@ def _decode(family: str, unit: np.ndarray) -> list[SerpenoidParams]:
 
 def search_family(family: str, score, rng: np.random.Generator, population: int, generations: int,
                   elite: int) -> tuple[np.ndarray, np.ndarray]:
-    """Random search then a (mu, lambda)-ES; return (unit points, scores) of every gait tried."""
+    """Random search, then ``generations`` CMA-ES generations of ``population``
+    gaits from the best random one; return (unit points, scores) of every gait tried.
+
+    ``elite`` is CMA-ES's parent number mu (its recombination weights are the
+    package's defaults). The phase lag is periodic, so its coordinate is left
+    unbounded and wrapped into the box when decoded.
+    """
+    import cma
+
     dim = len(BOXES[family])
     points = rng.uniform(size=(population, dim))
     scores = score(_decode(family, points))
     tried_points, tried_scores = [points], [scores]
-    sigma = 0.15
+    if generations == 0:
+        return points, scores
+    lag = [name for name, *_ in BOXES[family]].index("phase_lag")
+    lower, upper = [0.0] * dim, [1.0] * dim
+    lower[lag] = upper[lag] = None
+    es = cma.CMAEvolutionStrategy(points[int(np.argmax(scores))], 0.2, {
+        "bounds": [lower, upper], "popsize": population, "CMA_mu": min(elite, population // 2 or 1),
+        "seed": int(rng.integers(1, 2**31)), "verbose": -9, "verb_log": 0, "verb_disp": 0,
+        "maxiter": generations, "tolfun": 0, "tolx": 0, "tolfunhist": 0, "tolstagnation": 10**6,
+    })
     for _ in range(generations):
-        all_points = np.concatenate(tried_points)
-        all_scores = np.concatenate(tried_scores)
-        parents = all_points[np.argsort(-all_scores)[:elite]]
-        children = parents[rng.integers(elite, size=population)] + sigma * rng.standard_normal((population, dim))
-        # phase lag is periodic: wrap it instead of clipping at the box edge
-        lag = [name for name, *_ in BOXES[family]].index("phase_lag")
+        asked = es.ask()
+        children = np.array(asked)
         children[:, lag] %= 1.0
-        children = np.clip(children, 0.0, 1.0)
+        children = np.clip(children, 0.0, 1.0)  # the bound transform keeps the rest inside already
+        child_scores = score(_decode(family, children))
+        es.tell(asked, list(-child_scores))  # cma minimizes
         tried_points.append(children)
-        tried_scores.append(score(_decode(family, children)))
-        sigma *= 0.75
+        tried_scores.append(child_scores)
     return np.concatenate(tried_points), np.concatenate(tried_scores)
 
 
@@ -239,7 +253,13 @@ def main(argv=None) -> int:
     print(f"{args.env_id}: {result.params} -> {result.speed:.4f} +- {result.speed_std:.4f} m/s "
           f"({result.evaluated} gaits, {result.seconds:.0f} s)")
     if not args.dry_run:
-        save_result(args.env_id, {}, result, args.output)
+        import cma
+
+        note = (f"cma {cma.__version__} CMA-ES after random search: `python -m agents.search --env {args.env_id} "
+                f"--families {' '.join(args.families)} --population {args.population} --generations {args.generations} "
+                f"--search-steps {args.search_steps} --repeats {args.repeats} --final-episodes {args.final_episodes} "
+                f"--seed {args.seed}`")
+        save_result(args.env_id, {}, result, args.output, note=note)
         print(f"saved to {args.output}")
     return 0
 
