@@ -15,8 +15,12 @@ arguments and the same per-step arithmetic:
   ``alpha sin(w t + i beta) = alpha (cos(i beta) sin(w t) + sin(i beta) cos(w t))``.
 * ``joint_target`` (:class:`JointTargetAction`): the action is a target joint
   angle per joint, ``phi_ref = action * target_range`` (rad), tracked by a
-  joint PD ``T = kp (phi_ref - phi) - kd phidot`` saturated at the env's
-  ``max_torque``. The PD runs at the env-step rate (one torque per 0.04 s env
+  joint PD ``T = kp (phi_ref - phi) + kd (phidot_ref - phidot)`` saturated at
+  the env's ``max_torque``, with the reference rate ``phidot_ref`` the
+  target's change over the last env step divided by dt (0 on an episode's
+  first step; ``reference_rate="zero"`` drops it). The serpenoid PD uses the
+  curve's rate the same way: without it the searched Snake12 gait, fed as
+  targets, drops from 0.92 to 0.06 m/s (docs/learning.md). The PD runs at the env-step rate (one torque per 0.04 s env
   step, held over its RK4 sub-steps: the env's own action contract), so a very
   stiff PD overshoots; see docs/learning.md for the measured tracking.
 
@@ -86,11 +90,18 @@ def _extend_box(box: spaces.Box, extra: int) -> spaces.Box:
     return spaces.Box(low, high, dtype=box.dtype)
 
 
+REFERENCE_RATES = ("difference", "zero")
+
+
 class _PDSettings:
     """Validated gains of the joint-target PD (shared by the single and vector wrapper)."""
 
-    def __init__(self, env, kp, kd, target_range):
+    def __init__(self, env, kp, kd, target_range, reference_rate):
         g = _geometry(env)
+        if reference_rate not in REFERENCE_RATES:
+            raise ValueError(f"reference_rate must be one of {list(REFERENCE_RATES)}, got {reference_rate!r}")
+        self.use_rate = reference_rate == "difference"
+        self.dt = g["dt"]
         self.kp = _number("kp", kp, "N m/rad")
         self.kd = _number("kd", kd, "N m s/rad")
         if self.kp == 0 and self.kd == 0:
@@ -102,11 +113,19 @@ class _PDSettings:
             raise ValueError(f"target_range must be in (0, pi] rad, got {target_range!r}")
         self.max_torque, self.phi, self.rates = g["max_torque"], g["phi"], g["rates"]
 
-    def torque_action(self, action, obs) -> np.ndarray:
-        """Env action (torque / max_torque, in [-1, 1]) of the PD for a target ``action``."""
-        target = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) * self.target_range
+    def target(self, action) -> np.ndarray:
+        """Target joint angles (rad) of an action."""
+        return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) * self.target_range
+
+    def torque_action(self, action, obs, previous_target=None) -> np.ndarray:
+        """Env action (torque / max_torque, in [-1, 1]) of the PD for a target
+        ``action``; ``previous_target`` (rad, or None on a first step) gives the reference rate."""
+        target = self.target(action)
         obs = np.asarray(obs, dtype=np.float64)
-        torque = self.kp * (target - obs[..., self.phi]) - self.kd * obs[..., self.rates]
+        rate = 0.0
+        if self.use_rate and previous_target is not None:
+            rate = (target - previous_target) / self.dt
+        torque = self.kp * (target - obs[..., self.phi]) + self.kd * (rate - obs[..., self.rates])
         return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32)
 
 
@@ -119,22 +138,28 @@ class JointTargetAction(gym.Wrapper):
         kd: PD damping (N m s/rad), default 0.05.
         target_range: rad of target per unit action (default: the env's joint
             limit, pi/2 if it has none).
+        reference_rate: "difference" (target change / dt, default) or "zero".
     """
 
-    def __init__(self, env: gym.Env, kp: float = 1.0, kd: float = 0.05, target_range: float | None = None):
+    def __init__(self, env: gym.Env, kp: float = 1.0, kd: float = 0.05, target_range: float | None = None,
+                 reference_rate: str = "difference"):
         super().__init__(env)
-        self.pd = _PDSettings(env, kp, kd, target_range)
+        self.pd = _PDSettings(env, kp, kd, target_range, reference_rate)
         self._obs = None
+        self._previous = None
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
         self._obs = obs
+        self._previous = None
         return obs, info
 
     def step(self, action):
         if self._obs is None:
             raise gym.error.ResetNeeded("call reset() before step()")
-        obs, reward, terminated, truncated, info = self.env.step(self.pd.torque_action(action, self._obs))
+        torque = self.pd.torque_action(action, self._obs, self._previous)
+        self._previous = self.pd.target(action)
+        obs, reward, terminated, truncated, info = self.env.step(torque)
         self._obs = obs
         return obs, reward, terminated, truncated, info
 
@@ -142,22 +167,39 @@ class JointTargetAction(gym.Wrapper):
 class JointTargetActionVector(VectorWrapper):
     """:class:`JointTargetAction` for a batched vector env (one PD per sub-env row)."""
 
-    def __init__(self, env, kp: float = 1.0, kd: float = 0.05, target_range: float | None = None):
+    def __init__(self, env, kp: float = 1.0, kd: float = 0.05, target_range: float | None = None,
+                 reference_rate: str = "difference"):
         super().__init__(env)
-        self.pd = _PDSettings(env, kp, kd, target_range)
+        self.pd = _PDSettings(env, kp, kd, target_range, reference_rate)
         self._obs = None
+        self._previous = None
+        self._first = np.ones(self.num_envs, bool)  # rows on an episode's first step: reference rate 0
+        self._pending_reset = np.zeros(self.num_envs, bool)
 
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
         self._obs = obs
+        mask = (options or {}).get("reset_mask")
+        self._first[slice(None) if mask is None else np.asarray(mask, dtype=bool)] = True
         return obs, info
 
     def step(self, actions):
         if self._obs is None:
             raise gym.error.ResetNeeded("call reset() before step()")
+        target = self.pd.target(actions)
+        previous = target if self._previous is None else np.where(self._first[:, None], target, self._previous)
         # rows being auto-reset (next-step mode) ignore their action, so any PD value is fine there
-        obs, reward, terminated, truncated, info = self.env.step(self.pd.torque_action(actions, self._obs))
+        obs, reward, terminated, truncated, info = self.env.step(self.pd.torque_action(actions, self._obs, previous))
         self._obs = obs
+        self._previous = target
+        self._first[:] = False
+        done = np.asarray(terminated | truncated)
+        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+        if mode == AutoresetMode.NEXT_STEP:
+            self._first |= self._pending_reset  # reset by this call: the next step is their first
+            self._pending_reset = done.copy()
+        else:
+            self._first |= done
         return obs, reward, terminated, truncated, info
 
 
