@@ -1,10 +1,10 @@
-"""Search of serpenoid-gait parameters per env id (numpy only).
+"""Search of serpenoid-gait parameters per env id (CMA-ES from the ``cma`` package).
 
 Both gait families of :mod:`agents.serpenoid` are searched: uniform random
-samples in a box, then a few generations of a (mu, lambda) evolution
-strategy around the best (a simple CMA-ES stand-in with a shrinking
-isotropic step in box-normalized coordinates). A whole population is one
-batched vector env (one gait per sub-env), so a generation is one rollout.
+samples in a box, then a few generations of CMA-ES (Hansen's ``cma``,
+bounded to the box by its ``BoundTransform``) started from the best random
+gait, in box-normalized coordinates. A whole population is one batched
+vector env (one gait per sub-env), so a generation is one rollout.
 Every gait is scored on a few random starts; the best few of each family
 are re-scored on many full-length episodes and the best mean is written to ``configs/serpenoid.yaml`` under the env id.
 
@@ -67,9 +67,23 @@ def env_geometry(env_id: str, env_kwargs: dict) -> tuple[int, float, float, bool
         env.close()
 
 
+# Work-energy check (DESIGN.md): K(t) - K(0) equals the work of all loads
+# (info "power" x dt) for the continuous model; the fixed-step RK4 leaves a
+# residual of a few % of K over an episode (docs/results.md: -2.8 J at K ~ 80 J
+# under a trained Snake5 policy). A runaway integration breaks it by orders of
+# magnitude while the state can stay finite, and a search is drawn to such
+# runaways (a 93 m/s "gait" on Snake30), so a rollout whose residual exceeds
+# this fraction of its largest K (plus 1 J) scores as failed.
+ENERGY_RESIDUAL_TOLERANCE = 0.2
+FAILED_SCORE = -100.0  # m/s, search score of a failed or non-physical rollout (far below any gait)
+
+
 def rollout_speeds(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int) -> np.ndarray:
     """Mean forward CM speed (m/s) of each gait in ``plist`` over ``n_steps``
-    env steps, all gaits stepped together in one batched vector env."""
+    env steps, all gaits stepped together in one batched vector env.
+
+    A gait whose rollout ended early (the env's ``sim_failure`` truncation) or
+    broke the work-energy balance gets NaN: its speed is not physical."""
     import gymnasium as gym
 
     import snake_env  # noqa: F401
@@ -80,14 +94,34 @@ def rollout_speeds(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int
     try:
         controller = SerpenoidController(plist, n_links, max_torque, dt, num_envs=num,
                                          include_position=include_position)
-        obs, _ = envs.reset(seed=seed)
+        obs, info = envs.reset(seed=seed)
+        kinetic0 = np.asarray(info["kinetic_energy"], dtype=np.float64)
+        work = np.zeros(num)
+        peak = kinetic0.copy()
         total = np.zeros(num)
-        for _ in range(n_steps):
-            obs, _, terminated, truncated, info = envs.step(controller.act(obs))
+        failed = np.zeros(num, bool)
+        for step in range(n_steps):
+            # a runaway state can overflow the float32 observation: such a row
+            # is failed already; give it a zero action so the batch can go on
+            bad_obs = ~np.isfinite(obs).all(axis=1)
+            failed |= bad_obs
+            action = controller.act(np.where(bad_obs[:, None], 0.0, obs))
+            action[failed] = 0.0
+            obs, _, terminated, truncated, info = envs.step(action)
             total += np.asarray(info["x_velocity"], dtype=np.float64)
-            if np.any(terminated | truncated):
-                break  # n_steps never exceeds the episode length, so this is a failure
-        return total / n_steps
+            kinetic = np.asarray(info["kinetic_energy"], dtype=np.float64)
+            work += np.asarray(info["power"], dtype=np.float64) * dt
+            peak = np.maximum(peak, kinetic)
+            residual = np.abs(kinetic - kinetic0 - work)
+            # n_steps never exceeds the episode length, so an earlier episode end is a failure
+            ended = terminated | truncated if step < n_steps - 1 else terminated
+            failed |= ended | ~np.isfinite(residual)
+            failed |= residual > ENERGY_RESIDUAL_TOLERANCE * peak + 1.0
+            if failed.all():
+                break
+        speeds = total / n_steps
+        speeds[failed] = np.nan
+        return speeds
     finally:
         envs.close()
 
@@ -107,24 +141,38 @@ def _decode(family: str, unit: np.ndarray) -> list[SerpenoidParams]:
 
 def search_family(family: str, score, rng: np.random.Generator, population: int, generations: int,
                   elite: int) -> tuple[np.ndarray, np.ndarray]:
-    """Random search then a (mu, lambda)-ES; return (unit points, scores) of every gait tried."""
+    """Random search, then ``generations`` CMA-ES generations of ``population``
+    gaits from the best random one; return (unit points, scores) of every gait tried.
+
+    ``elite`` is CMA-ES's parent number mu (its recombination weights are the
+    package's defaults). The phase lag is periodic, so its coordinate is left
+    unbounded and wrapped into the box when decoded.
+    """
+    import cma
+
     dim = len(BOXES[family])
     points = rng.uniform(size=(population, dim))
     scores = score(_decode(family, points))
     tried_points, tried_scores = [points], [scores]
-    sigma = 0.15
+    if generations == 0:
+        return points, scores
+    lag = [name for name, *_ in BOXES[family]].index("phase_lag")
+    lower, upper = [0.0] * dim, [1.0] * dim
+    lower[lag] = upper[lag] = None
+    es = cma.CMAEvolutionStrategy(points[int(np.argmax(scores))], 0.2, {
+        "bounds": [lower, upper], "popsize": population, "CMA_mu": min(elite, population // 2 or 1),
+        "seed": int(rng.integers(1, 2**31)), "verbose": -9, "verb_log": 0, "verb_disp": 0,
+        "maxiter": generations, "tolfun": 0, "tolx": 0, "tolfunhist": 0, "tolstagnation": 10**6,
+    })
     for _ in range(generations):
-        all_points = np.concatenate(tried_points)
-        all_scores = np.concatenate(tried_scores)
-        parents = all_points[np.argsort(-all_scores)[:elite]]
-        children = parents[rng.integers(elite, size=population)] + sigma * rng.standard_normal((population, dim))
-        # phase lag is periodic: wrap it instead of clipping at the box edge
-        lag = [name for name, *_ in BOXES[family]].index("phase_lag")
+        asked = es.ask()
+        children = np.array(asked)
         children[:, lag] %= 1.0
-        children = np.clip(children, 0.0, 1.0)
+        children = np.clip(children, 0.0, 1.0)  # the bound transform keeps the rest inside already
+        child_scores = score(_decode(family, children))
+        es.tell(asked, list(-child_scores))  # cma minimizes
         tried_points.append(children)
-        tried_scores.append(score(_decode(family, children)))
-        sigma *= 0.75
+        tried_scores.append(child_scores)
     return np.concatenate(tried_points), np.concatenate(tried_scores)
 
 
@@ -158,15 +206,18 @@ def search(env_id: str, env_kwargs: dict | None = None, families=FAMILIES, popul
             nonlocal evaluated
             evaluated += len(plist) * repeats
             speeds = rollout_speeds(env_id, env_kwargs, list(plist) * repeats, search_steps, int(rng.integers(2**31)))
-            return speeds.reshape(repeats, len(plist)).mean(axis=0)
+            scores = speeds.reshape(repeats, len(plist)).mean(axis=0)
+            return np.where(np.isnan(scores), FAILED_SCORE, scores)
 
         points, scores = search_family(family, score, rng, population, generations, min(elite, population))
         order = np.argsort(-scores)[:finalists]
         candidates += _decode(family, points[order])
     # re-score the finalists of both families on full episodes from fresh starts
     per_episode = final_scores(env_id, env_kwargs, candidates, final_steps, final_episodes, seed + 1000)
-    mean = per_episode.mean(axis=0)
-    best = int(np.argmax(mean))
+    mean = per_episode.mean(axis=0)  # NaN if any episode failed or was not physical
+    if np.isnan(mean).all():
+        raise ValueError(f"every finalist gait of {env_id} failed or broke the work-energy balance; widen the search")
+    best = int(np.nanargmax(mean))
     return SearchResult(params=candidates[best], speed=float(mean[best]), speed_std=float(per_episode[:, best].std()),
                         evaluated=evaluated + len(candidates) * final_episodes,
                         seconds=time.perf_counter() - started)
@@ -239,7 +290,13 @@ def main(argv=None) -> int:
     print(f"{args.env_id}: {result.params} -> {result.speed:.4f} +- {result.speed_std:.4f} m/s "
           f"({result.evaluated} gaits, {result.seconds:.0f} s)")
     if not args.dry_run:
-        save_result(args.env_id, {}, result, args.output)
+        import cma
+
+        note = (f"cma {cma.__version__} CMA-ES after random search: `python -m agents.search --env {args.env_id} "
+                f"--families {' '.join(args.families)} --population {args.population} --generations {args.generations} "
+                f"--search-steps {args.search_steps} --repeats {args.repeats} --final-episodes {args.final_episodes} "
+                f"--seed {args.seed}`")
+        save_result(args.env_id, {}, result, args.output, note=note)
         print(f"saved to {args.output}")
     return 0
 

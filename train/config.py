@@ -42,6 +42,9 @@ META_DEFAULTS = {
     "n_eval_episodes": 4,
     "checkpoint_freq": 50_000,  # env steps (summed over envs) between checkpoints
     "torch_threads": 1,  # the training machine is shared; 1 thread avoids oversubscription
+    # opt-in observation/action modes (snake_env.wrappers), RL Zoo's key name:
+    # a mapping {name: kwargs} applied in order, e.g. {joint_target: {kp: 1.0}}
+    "env_wrapper": None,
 }
 RUN_KEYS = ("algo", "env_id", "seed")
 VEC_ENV_KINDS = ("batched", "dummy")
@@ -266,6 +269,12 @@ def validate(config: dict) -> dict:
     if not isinstance(config["env_kwargs"], dict):
         raise ConfigError(f"env_kwargs must be a mapping, got {config['env_kwargs']!r}")
     policy_kwargs_dict(config["policy_kwargs"])  # parse once to report errors early
+    from snake_env.wrappers import parse_env_wrapper
+
+    try:
+        parse_env_wrapper(config["env_wrapper"])
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     normalize_options(config["normalize"], None)
     for key in SCHEDULE_KEYS:
         value = config.get(key)

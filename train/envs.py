@@ -28,21 +28,30 @@ def _make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
     dynamics (SnakeSB3VecEnv over the env's vector entry point);
     ``dummy`` loops over single envs (SB3 DummyVecEnv), for any gymnasium id.
     """
+    import gymnasium as gym
+    from gymnasium.vector import AutoresetMode
+
+    import snake_env  # noqa: F401  (registers the ids)
+    from snake_env.wrappers import wrap_env, wrap_vector_env
+
     env_id = config["env_id"]
     env_kwargs = dict(config["env_kwargs"])
+    env_wrapper = config.get("env_wrapper")
     if config["vec_env"] == "batched":
         from agents.sb3_vec_env import SnakeSB3VecEnv
 
-        venv = SnakeSB3VecEnv(env_id, num_envs=n_envs, **env_kwargs)
+        if env_wrapper:
+            # SB3 resets finished envs in the same step; the wrappers sit between it and the batched env
+            batched = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point",
+                                   autoreset_mode=AutoresetMode.SAME_STEP, **env_kwargs)
+            venv = SnakeSB3VecEnv(wrap_vector_env(batched, env_wrapper))
+        else:
+            venv = SnakeSB3VecEnv(env_id, num_envs=n_envs, **env_kwargs)
         venv.seed(seed)  # seeds the first reset
     else:
-        import gymnasium as gym
-
-        import snake_env  # noqa: F401  (registers the ids)
-
         def factory(rank):
             def make():
-                env = gym.make(env_id, **env_kwargs)
+                env = wrap_env(gym.make(env_id, **env_kwargs), env_wrapper)
                 env.reset(seed=seed + rank)
                 env.action_space.seed(seed + rank)
                 return env

@@ -68,13 +68,14 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
-def make_env(env_id: str, env_kwargs: dict, render: bool):
+def make_env(env_id: str, env_kwargs: dict, render: bool, env_wrapper=None):
     import gymnasium as gym
 
     import snake_env  # noqa: F401
+    from snake_env.wrappers import wrap_env
 
     try:
-        return gym.make(env_id, render_mode="rgb_array" if render else None, **env_kwargs)
+        return wrap_env(gym.make(env_id, render_mode="rgb_array" if render else None, **env_kwargs), env_wrapper)
     except (ValueError, TypeError, gym.error.Error) as exc:
         raise EvalError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
 
@@ -214,7 +215,8 @@ def policy_actor(args):
     if args.env_id and config.get("env_id") not in (None, args.env_id):
         raise EvalError(f"{files.model} was trained on {config['env_id']}, not {args.env_id}")
     env_kwargs = dict(config.get("env_kwargs") or {})
-    env = make_env(env_id, env_kwargs, render=False)
+    env_wrapper = config.get("env_wrapper")
+    env = make_env(env_id, env_kwargs, render=False, env_wrapper=env_wrapper)
     try:
         loaded = load_policy(files.model, env.observation_space, env.action_space, config)
     except PolicyLoadError as exc:
@@ -228,7 +230,8 @@ def policy_actor(args):
     stats = files.vecnormalize.name if files.vecnormalize else "none"
     title = (f"{loaded.algo.upper()} {files.model} on {env_id} "
              f"({'deterministic' if args.deterministic else 'stochastic'}; VecNormalize stats: {stats})")
-    return env_id, env_kwargs, act, lambda: None, title, {"algo": loaded.algo, "model": str(files.model)}
+    meta = {"algo": loaded.algo, "model": str(files.model), **({"env_wrapper": env_wrapper} if env_wrapper else {})}
+    return env_id, env_kwargs, act, lambda: None, title, meta
 
 
 def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
@@ -330,7 +333,7 @@ def evaluate(args) -> dict:
         from stable_baselines3.common.utils import set_random_seed
 
         set_random_seed(args.seed)  # torch sampling of stochastic actions, reproducible
-    env = make_env(env_id, env_kwargs, render=bool(args.video))
+    env = make_env(env_id, env_kwargs, render=bool(args.video), env_wrapper=meta.get("env_wrapper"))
     try:
         results, paths, frames = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps,
                                               record_video=bool(args.video))

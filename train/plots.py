@@ -114,3 +114,41 @@ def plot_campaign(groups, baselines, path, episode_steps: int = 1000) -> None:
         ax.legend(fontsize="small")
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def plot_speed_vs_n(learned, serpenoid, path, earlier=None) -> None:
+    """Mean forward speed of the CM (m/s) against the number of links n.
+
+    ``learned``: {(algo, label): {n: [speed per seed]}} (each seed a dot, the
+    mean a line); ``serpenoid``: {n: m/s} of the searched gait; ``earlier``:
+    like ``learned``, drawn hollow (speeds measured in an earlier campaign).
+    Log speed axis: a speed below ``floor`` (m/s, also a backward one) is drawn at the floor."""
+    import numpy as np
+
+    floor = 0.005
+    fig, ax = plt.subplots(figsize=(6.8, 4.4))
+    colors = {"ppo": "tab:blue", "sac": "tab:orange"}
+    ns = sorted(serpenoid)
+    if ns:
+        ax.plot(ns, [max(serpenoid[n], floor) for n in ns], "k--s", markersize=5, linewidth=1.2, label="serpenoid (searched)")
+    for hollow, groups in ((False, learned), (True, earlier or {})):
+        for (algo, label), by_n in sorted(groups.items()):
+            points = sorted(by_n.items())
+            if not points:
+                continue
+            color = colors.get(algo, "tab:green")
+            for n, speeds in points:
+                ax.plot([n] * len(speeds), np.maximum(speeds, floor), "o", color=color, markersize=4,
+                        markerfacecolor="none" if hollow else color, alpha=0.8)
+            means = [max(float(np.mean(s)), floor) for _, s in points]
+            ax.plot([n for n, _ in points], means, "-" if not hollow else ":", color=color, linewidth=1.2, label=label)
+    ax.set_xlabel("number of links n")
+    ax.set_ylabel("mean forward speed of the CM (m/s)")
+    ax.set_yscale("log")
+    ax.axhline(floor, color="grey", linewidth=0.8, linestyle=":")
+    ax.set_xticks(sorted(set(ns) | {n for g in (learned, earlier or {}) for by_n in g.values() for n in by_n}))
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small")
+    ax.set_title(f"Learned (deterministic) and serpenoid speed by length; < {floor} m/s drawn at {floor}", fontsize="medium")
+    fig.tight_layout()
+    save_figure(fig, path)

@@ -7,6 +7,11 @@ Each final model is evaluated with snake-eval (deterministic; and stochastic
 and the EvalCallback's best model as extra columns), each env's serpenoid
 gait with ``snake-eval --baseline serpenoid`` on the same episode seeds.
 Results are cached as ``eval_*.json`` in every run directory.
+
+With ``--images`` it also draws ``speed_vs_n.png``: the learned runs' speed
+and the serpenoid's (every id of ``configs/serpenoid.yaml`` named SnakeN)
+against n; ``--earlier CSV`` (columns env, algo, seed, speed) adds hollow
+points for speeds measured in an earlier campaign whose runs are not at hand.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import numpy as np
 from train.evaluate import main as evaluate_main
 
 RUN_RE = re.compile(r"^(?P<env>[^_]+)__(?P<algo>ppo|sac)__s(?P<seed>\d+)$")
+SIZE_RE = re.compile(r"^Snake(?P<n>\d+)-v\d+$")
 
 
 def evaluate_cached(json_path: Path, argv: list[str]) -> dict:
@@ -57,12 +63,42 @@ def fmt(values) -> str:
     return f"{values.mean():.2f} ± {values.std():.2f}"
 
 
+def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=None) -> None:
+    """speed_vs_n.png from the runs, the serpenoid of every SnakeN id and the earlier CSV."""
+    import csv
+
+    from agents.search import load_gaits
+    from train.plots import plot_speed_vs_n
+
+    serpenoid = {}
+    for env_id in load_gaits():
+        env = env_id.split("/")[-1]
+        if (m := SIZE_RE.match(env)):
+            serpenoid[int(m["n"])] = evaluate_cached(root / f"serpenoid_{env}_{episodes}.json",
+                                                     ["--baseline", "serpenoid", "--env", env_id,
+                                                      "--episodes", str(episodes)])["mean_forward_velocity"]
+    learned = defaultdict(lambda: defaultdict(list))
+    for (env, algo), items in runs.items():
+        if (m := SIZE_RE.match(env)):
+            learned[(algo, f"{algo.upper()} (this table)")][int(m["n"])] += [r["det"]["mean_forward_velocity"]
+                                                                             for r in items]
+    earlier = defaultdict(lambda: defaultdict(list))
+    if earlier_csv:
+        with open(earlier_csv, newline="") as handle:
+            for row in csv.DictReader(handle):
+                if (m := SIZE_RE.match(row["env"])):
+                    earlier[(row["algo"], f"{row['algo'].upper()} (earlier campaign)")][int(m["n"])].append(
+                        float(row["speed"]))
+    plot_speed_vs_n(learned, serpenoid, path, earlier)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m train.results_table", description=__doc__.split("\n\n")[0])
     parser.add_argument("root", help="directory holding the run directories")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--extra-episodes", type=int, default=5, help="episodes for the stochastic/best columns")
     parser.add_argument("--images", help="copy learning curves here as curve_<env>_<algo>_s<seed>.png")
+    parser.add_argument("--earlier", help="CSV (env, algo, seed, speed) of earlier measured runs for speed_vs_n.png")
     args = parser.parse_args(argv)
     root = Path(args.root)
     runs = defaultdict(list)
@@ -99,6 +135,7 @@ def main(argv=None) -> int:
                   for key, items in runs.items()}
         plot_campaign(groups, {env: b["mean_forward_velocity"] for env, b in baselines.items()},
                       Path(args.images) / "curve_summary.png")
+        plot_sizes(root, runs, args.episodes, Path(args.images) / "speed_vs_n.png", args.earlier)
     print("| env | algo | seeds | timesteps | wall time (min) | v_x deterministic (m/s) | ratio to serpenoid "
           "| v_x stochastic (m/s) | v_x best model (m/s) | serpenoid v_x (m/s) |")
     print("|---|---|---|---|---|---|---|---|---|---|")

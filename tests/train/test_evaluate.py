@@ -111,6 +111,8 @@ def bad_model_cases(ppo_run: Path, tmp_path: Path):
     bad_stats = tmp_path / "bad_stats"
     shutil.copytree(no_stats, bad_stats)
     (bad_stats / "vecnormalize.pkl").write_bytes(b"\x80\x04corrupt")
+    no_gaits = tmp_path / "gaits.yaml"  # every registered id has a shipped gait, so an empty gait file
+    no_gaits.write_text("{}\n")
     return [
         ([str(tmp_path / "missing")], "no such run directory or model file"),
         ([str(garbage), "--env", ENV], "not an SB3 model file"),
@@ -120,7 +122,8 @@ def bad_model_cases(ppo_run: Path, tmp_path: Path):
         ([str(no_stats)], "VecNormalize statistics are missing"),
         ([str(bad_stats)], "not readable VecNormalize statistics"),
         ([str(tmp_path)], "holds no model.zip"),
-        (["--baseline", "serpenoid", "--env", "snake_env/Snake30-v1"], "no serpenoid gait for env"),
+        (["--baseline", "serpenoid", "--env", "snake_env/Snake30-v1", "--serpenoid-config", str(no_gaits)],
+         "no serpenoid gait for env"),
         ([str(ppo_run), "--video", str(tmp_path / "v.avi")], "--video must end with one of"),
     ]
 

@@ -1,0 +1,345 @@
+"""Opt-in observation and action modes as Gymnasium wrappers (single and vector env).
+
+The env itself stays a joint-torque env with a clock-free observation (the
+mission's default). Two remedies for long snakes are offered on top of it,
+each as a ``gymnasium.Wrapper`` for the single env and a
+``gymnasium.vector.VectorWrapper`` for the batched vector env, with the same
+arguments and the same per-step arithmetic:
+
+* ``phase_observation`` (:class:`PhaseObservation`): appends
+  ``sin(w t), cos(w t)`` for each frequency ``w`` (rad/s), ``t`` the time
+  since the episode's reset (s). A serpenoid gait is driven by such a clock;
+  a Markov policy without one must build its own oscillator from state
+  feedback. With ``joint_target`` below, a policy *linear* in these two
+  features is exactly a serpenoid curve,
+  ``alpha sin(w t + i beta) = alpha (cos(i beta) sin(w t) + sin(i beta) cos(w t))``.
+* ``joint_target`` (:class:`JointTargetAction`): the action is a target joint
+  angle per joint, ``phi_ref = action * target_range`` (rad), tracked by a
+  joint PD ``T = kp (phi_ref - phi) + kd (phidot_ref - phidot)`` saturated at
+  the env's ``max_torque``, with the reference rate ``phidot_ref`` the
+  target's change over the last env step divided by dt (0 on an episode's
+  first step; ``reference_rate="zero"`` drops it). The serpenoid PD uses the
+  curve's rate the same way: without it the searched Snake12 gait, fed as
+  targets, drops from 0.92 to 0.06 m/s (docs/learning.md). The PD runs at the env-step rate (one torque per 0.04 s env
+  step, held over its RK4 sub-steps: the env's own action contract), so a very
+  stiff PD overshoots; see docs/learning.md for the measured tracking.
+
+The train config selects them with the ``env_wrapper`` key (after RL Zoo's
+key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
+
+    env_wrapper: {joint_target: {kp: 1.0, kd: 0.05}, phase_observation: {frequencies: [25.0]}}
+
+Observation layout read here (the env's documented one): [x, y]? + joint
+angles phi (n-1) + cos/sin heading (2) + (V_1, thetadot_1) + joint rates (n-1).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping, Sequence
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorWrapper
+from gymnasium.vector.utils import batch_space
+
+def _number(name, value, unit, minimum=0.0, strict=False) -> float:
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or (value <= minimum if strict else value < minimum):
+        bound = f"{'>' if strict else '>='} {minimum}"
+        raise ValueError(f"{name} must be a finite number {bound} ({unit}), got {value!r}")
+    return float(value)
+
+
+def _geometry(env) -> dict:
+    """n_links, max_torque (N m), dt (s), joint_limit (rad or None) and the
+    phi / phidot slices of the observation, read from the unwrapped env."""
+    base = env.unwrapped
+    try:
+        n = int(base.n_links)
+        max_torque = float(base.max_torque)
+        dt = float(base.dt)
+    except AttributeError as exc:
+        raise ValueError(f"snake wrappers need a snake_env env (n_links, max_torque, dt), got {base!r}") from None
+    start = 0 if getattr(base, "exclude_current_positions_from_observation", True) else 2
+    phi = slice(start, start + n - 1)
+    rates_start = start + (n - 1) + 4
+    return dict(n_links=n, max_torque=max_torque, dt=dt, joint_limit=getattr(base, "joint_limit", None),
+                phi=phi, rates=slice(rates_start, rates_start + n - 1))
+
+
+def _frequencies(frequencies) -> np.ndarray:
+    if isinstance(frequencies, numbers.Real) and not isinstance(frequencies, bool):
+        frequencies = [frequencies]
+    if not isinstance(frequencies, Sequence) or isinstance(frequencies, str) or not frequencies:
+        raise ValueError(f"frequencies must be a number or a non-empty list of numbers > 0 (rad/s), got {frequencies!r}")
+    return np.array([_number("frequencies", f, "rad/s", strict=True) for f in frequencies])
+
+
+def _phase_features(time: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """(..., 2 k) = [sin(w_1 t), cos(w_1 t), ..., sin(w_k t), cos(w_k t)]."""
+    angle = np.asarray(time, dtype=np.float64)[..., None] * omega
+    return np.stack([np.sin(angle), np.cos(angle)], axis=-1).reshape(*angle.shape[:-1], 2 * omega.size)
+
+
+def _extend_box(box: spaces.Box, extra: int) -> spaces.Box:
+    low = np.concatenate([box.low, -np.ones(extra, box.dtype)])
+    high = np.concatenate([box.high, np.ones(extra, box.dtype)])
+    return spaces.Box(low, high, dtype=box.dtype)
+
+
+REFERENCE_RATES = ("difference", "zero")
+
+
+class _PDSettings:
+    """Validated gains of the joint-target PD (shared by the single and vector wrapper)."""
+
+    def __init__(self, env, kp, kd, target_range, reference_rate):
+        g = _geometry(env)
+        if reference_rate not in REFERENCE_RATES:
+            raise ValueError(f"reference_rate must be one of {list(REFERENCE_RATES)}, got {reference_rate!r}")
+        self.use_rate = reference_rate == "difference"
+        self.dt = g["dt"]
+        self.kp = _number("kp", kp, "N m/rad")
+        self.kd = _number("kd", kd, "N m s/rad")
+        if self.kp == 0 and self.kd == 0:
+            raise ValueError("joint_target needs kp > 0 or kd > 0 (N m/rad, N m s/rad)")
+        if target_range is None:
+            target_range = g["joint_limit"] if g["joint_limit"] else math.pi / 2
+        self.target_range = _number("target_range", target_range, "rad", strict=True)
+        if self.target_range > math.pi:
+            raise ValueError(f"target_range must be in (0, pi] rad, got {target_range!r}")
+        self.max_torque, self.phi, self.rates = g["max_torque"], g["phi"], g["rates"]
+
+    def target(self, action) -> np.ndarray:
+        """Target joint angles (rad) of an action."""
+        return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) * self.target_range
+
+    def torque_action(self, action, obs, previous_target=None) -> np.ndarray:
+        """Env action (torque / max_torque, in [-1, 1]) of the PD for a target
+        ``action``; ``previous_target`` (rad, or None on a first step) gives the reference rate."""
+        target = self.target(action)
+        obs = np.asarray(obs, dtype=np.float64)
+        rate = 0.0
+        if self.use_rate and previous_target is not None:
+            rate = (target - previous_target) / self.dt
+        torque = self.kp * (target - obs[..., self.phi]) + self.kd * (rate - obs[..., self.rates])
+        return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32)
+
+
+class JointTargetAction(gym.Wrapper):
+    """Action = target joint angles (fraction of ``target_range``, in [-1, 1]),
+    tracked by a joint PD within the torque limit.
+
+    Args:
+        kp: PD stiffness (N m/rad), default 1.0.
+        kd: PD damping (N m s/rad), default 0.05.
+        target_range: rad of target per unit action (default: the env's joint
+            limit, pi/2 if it has none).
+        reference_rate: "difference" (target change / dt, default) or "zero".
+    """
+
+    def __init__(self, env: gym.Env, kp: float = 1.0, kd: float = 0.05, target_range: float | None = None,
+                 reference_rate: str = "difference"):
+        super().__init__(env)
+        self.pd = _PDSettings(env, kp, kd, target_range, reference_rate)
+        self._obs = None
+        self._previous = None
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._obs = obs
+        self._previous = None
+        return obs, info
+
+    def step(self, action):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        torque = self.pd.torque_action(action, self._obs, self._previous)
+        self._previous = self.pd.target(action)
+        obs, reward, terminated, truncated, info = self.env.step(torque)
+        self._obs = obs
+        return obs, reward, terminated, truncated, info
+
+
+class JointTargetActionVector(VectorWrapper):
+    """:class:`JointTargetAction` for a batched vector env (one PD per sub-env row)."""
+
+    def __init__(self, env, kp: float = 1.0, kd: float = 0.05, target_range: float | None = None,
+                 reference_rate: str = "difference"):
+        super().__init__(env)
+        self.pd = _PDSettings(env, kp, kd, target_range, reference_rate)
+        self._obs = None
+        self._previous = None
+        self._first = np.ones(self.num_envs, bool)  # rows on an episode's first step: reference rate 0
+        self._pending_reset = np.zeros(self.num_envs, bool)
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._obs = obs
+        mask = (options or {}).get("reset_mask")
+        self._first[slice(None) if mask is None else np.asarray(mask, dtype=bool)] = True
+        return obs, info
+
+    def step(self, actions):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        target = self.pd.target(actions)
+        previous = target if self._previous is None else np.where(self._first[:, None], target, self._previous)
+        # rows being auto-reset (next-step mode) ignore their action, so any PD value is fine there
+        obs, reward, terminated, truncated, info = self.env.step(self.pd.torque_action(actions, self._obs, previous))
+        self._obs = obs
+        self._previous = target
+        self._first[:] = False
+        done = np.asarray(terminated | truncated)
+        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+        if mode == AutoresetMode.NEXT_STEP:
+            self._first |= self._pending_reset  # reset by this call: the next step is their first
+            self._pending_reset = done.copy()
+        else:
+            self._first |= done
+        return obs, reward, terminated, truncated, info
+
+
+class PhaseObservation(gym.Wrapper):
+    """Appends ``sin(w t), cos(w t)`` per frequency ``w`` (rad/s) to the
+    observation; ``t`` (s) counts env steps since the reset times the env's dt.
+
+    Args:
+        frequencies: one frequency or a list (rad/s), default 25.0 (the
+            searched serpenoids' 25-40 rad/s range; 4 env steps per period at 40).
+    """
+
+    def __init__(self, env: gym.Env, frequencies=25.0):
+        super().__init__(env)
+        self.omega = _frequencies(frequencies)
+        self.dt = _geometry(env)["dt"]
+        self.observation_space = _extend_box(env.observation_space, 2 * self.omega.size)
+        self._steps = 0
+
+    def _augment(self, obs):
+        phase = _phase_features(np.array(self._steps * self.dt), self.omega)
+        return np.concatenate([obs, phase.astype(obs.dtype)])
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._steps = 0
+        return self._augment(obs), info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self._steps += 1
+        return self._augment(obs), reward, terminated, truncated, info
+
+
+class PhaseObservationVector(VectorWrapper):
+    """:class:`PhaseObservation` for a batched vector env: one clock per sub-env,
+    restarted with the sub-env's (auto)reset; ``info["final_obs"]`` (same-step
+    autoreset) carries the phase of the episode's last step."""
+
+    def __init__(self, env, frequencies=25.0):
+        super().__init__(env)
+        self.omega = _frequencies(frequencies)
+        self.dt = _geometry(env)["dt"]
+        self.single_observation_space = _extend_box(env.single_observation_space, 2 * self.omega.size)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._steps = np.zeros(self.num_envs, np.int64)
+        self._pending_reset = np.zeros(self.num_envs, bool)
+
+    def _augment(self, obs, steps):
+        phase = _phase_features(steps * self.dt, self.omega).astype(obs.dtype)
+        return np.concatenate([obs, phase], axis=-1)
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        mask = (options or {}).get("reset_mask")
+        if mask is None:
+            self._steps[:] = 0
+            self._pending_reset[:] = False
+        else:
+            mask = np.asarray(mask, dtype=bool)
+            self._steps[mask] = 0
+            self._pending_reset[mask] = False
+        return self._augment(obs, self._steps), info
+
+    def step(self, actions):
+        obs, reward, terminated, truncated, info = self.env.step(actions)
+        done = np.asarray(terminated | truncated)
+        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+        self._steps += 1
+        if mode == AutoresetMode.NEXT_STEP:
+            # the rows done on the previous call were reset by this one
+            self._steps[self._pending_reset] = 0
+            self._pending_reset = done.copy()
+        elif mode == AutoresetMode.SAME_STEP and done.any():
+            if "final_obs" in info:
+                final = info["final_obs"].copy()
+                for i in np.flatnonzero(done):
+                    final[i] = self._augment(np.asarray(final[i]), self._steps[i])
+                info = {**info, "final_obs": final}
+            self._steps[done] = 0
+        return self._augment(obs, self._steps), reward, terminated, truncated, info
+
+
+WRAPPERS = {
+    "phase_observation": (PhaseObservation, PhaseObservationVector),
+    "joint_target": (JointTargetAction, JointTargetActionVector),
+}
+
+
+def parse_env_wrapper(spec) -> list[tuple[str, dict]]:
+    """``env_wrapper`` config value -> [(name, kwargs)], in order.
+
+    Accepts None, a name, a list of names or one-key mappings, or a mapping
+    ``{name: kwargs-or-None}``; an unknown name or bad kwargs is a one-line ValueError."""
+    if spec is None or spec == {} or spec == []:
+        return []
+    if isinstance(spec, str):
+        items = [(spec, {})]
+    elif isinstance(spec, Mapping):
+        items = list(spec.items())
+    elif isinstance(spec, Sequence):
+        items = []
+        for entry in spec:
+            if isinstance(entry, str):
+                items.append((entry, {}))
+            elif isinstance(entry, Mapping) and len(entry) == 1:
+                items.extend(entry.items())
+            else:
+                raise ValueError(f"env_wrapper entries must be names or one-key mappings, got {entry!r}")
+    else:
+        raise ValueError(f"env_wrapper must be a mapping {{name: kwargs}}, a name or a list, got {spec!r}")
+    out = []
+    for name, kwargs in items:
+        if name not in WRAPPERS:
+            raise ValueError(f"env_wrapper name must be one of {sorted(WRAPPERS)}, got {name!r}")
+        if kwargs is None:
+            kwargs = {}
+        if not isinstance(kwargs, Mapping):
+            raise ValueError(f"env_wrapper {name!r} kwargs must be a mapping, got {kwargs!r}")
+        out.append((name, dict(kwargs)))
+    return out
+
+
+def _construct(cls, env, name, kwargs):
+    try:
+        return cls(env, **kwargs)
+    except TypeError as exc:
+        raise ValueError(f"env_wrapper {name!r}: {str(exc).splitlines()[0]}") from None
+
+
+def wrap_env(env: gym.Env, spec) -> gym.Env:
+    """Apply the ``env_wrapper`` spec to a single env."""
+    for name, kwargs in parse_env_wrapper(spec):
+        env = _construct(WRAPPERS[name][0], env, name, kwargs)
+    return env
+
+
+def wrap_vector_env(envs, spec):
+    """Apply the ``env_wrapper`` spec to a batched vector env."""
+    for name, kwargs in parse_env_wrapper(spec):
+        envs = _construct(WRAPPERS[name][1], envs, name, kwargs)
+    return envs
+

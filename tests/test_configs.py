@@ -1,0 +1,43 @@
+"""Every registered locomotion id (newest version of each name) ships a PPO,
+a SAC and a serpenoid entry, so a new variant cannot be registered without them."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from gymnasium.envs.registration import find_highest_version, registry
+
+import snake_env  # noqa: F401  (registers the ids)
+from agents.search import load_gaits
+from train.config import build_config, read_yaml, default_config_path
+
+# locomotion names: "Snake" (n_links kwarg) and "Snake<n>"; task ids (SnakeReach<n>, ...) have their own configs
+LOCOMOTION_NAME = re.compile(r"^Snake\d*$")
+
+
+def newest_locomotion_ids() -> list[str]:
+    names = {spec.name for spec in registry.values() if spec.namespace == "snake_env" and LOCOMOTION_NAME.match(spec.name)}
+    return sorted(f"snake_env/{name}-v{find_highest_version('snake_env', name)}" for name in names)
+
+
+def test_the_registry_has_every_size():
+    ids = newest_locomotion_ids()
+    assert len(ids) == 7, ids  # Snake and Snake3, 5, 8, 12, 20, 30
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_every_locomotion_id_has_a_valid_training_entry(algo):
+    entries = read_yaml(default_config_path(algo))
+    missing = [env_id for env_id in newest_locomotion_ids() if env_id not in entries]
+    assert not missing, f"configs/{algo}.yaml has no entry for {missing}"
+    for env_id in newest_locomotion_ids():
+        build_config(algo, env_id)  # merges and validates the entry (keys, wrappers, schedules)
+
+
+def test_every_locomotion_id_has_a_searched_serpenoid():
+    gaits = load_gaits()
+    missing = [env_id for env_id in newest_locomotion_ids() if env_id not in gaits]
+    assert not missing, f"configs/serpenoid.yaml has no gait for {missing} (run: python -m agents.search --env ID)"
+    for env_id in newest_locomotion_ids():
+        assert gaits[env_id]["search"]["mean_forward_velocity"] > 0.0, env_id

@@ -1,0 +1,155 @@
+"""Opt-in phase observation and joint-target action (snake_env.wrappers), single and vector env."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+import snake_env  # noqa: F401
+from agents.search import load_params
+from agents.serpenoid import SerpenoidController
+from snake_env.wrappers import (JointTargetAction, JointTargetActionVector, PhaseObservation, PhaseObservationVector,
+                                parse_env_wrapper, wrap_env, wrap_vector_env)
+
+ENV = "snake_env/Snake3-v1"
+
+
+def test_joint_target_sends_the_saturated_pd_torque_to_the_env():
+    """The wrapped env's step equals the plain env's step with the PD torque
+    kp (target - phi) + kd ((target - previous target) / dt - phidot), clipped
+    to the torque limit, computed from the last observation."""
+    kp, kd = 3.0, 0.1
+    wrapped = JointTargetAction(gym.make("snake_env/Snake5-v1", max_torque=2.0), kp=kp, kd=kd)
+    plain = gym.make("snake_env/Snake5-v1", max_torque=2.0)
+    obs, _ = wrapped.reset(seed=4)
+    plain_obs, _ = plain.reset(seed=4)
+    rng = np.random.default_rng(0)
+    saturated = 0
+    previous = None
+    for _ in range(30):
+        target = rng.uniform(-1, 1, 4).astype(np.float32)
+        state = obs.astype(np.float64)
+        goal = target.astype(np.float64) * math.pi / 2  # joint limit pi/2 rad per unit action
+        rate = 0.0 if previous is None else (goal - previous) / 0.04
+        previous = goal
+        torque = kp * (goal - state[0:4]) + kd * (rate - state[8:12])
+        action = np.clip(torque / 2.0, -1, 1).astype(np.float32)
+        saturated += int((np.abs(torque) > 2.0).sum())
+        obs, reward, *_ = wrapped.step(target)
+        plain_obs, plain_reward, *_ = plain.step(action)
+        np.testing.assert_array_equal(obs, plain_obs)
+        assert reward == plain_reward
+    assert saturated > 0  # the limit was exercised
+
+
+@pytest.mark.parametrize("kp, kd, reference_rate", [(0.77, 0.1, "difference"), (3.0, 0.1, "zero")])
+def test_joint_target_tracks_an_admissible_trajectory_within_the_torque_limit(kp, kd, reference_rate):
+    """A joint trajectory the snake really followed (under the searched gait) is
+    tracked from the same start: mean error well below the trajectory's size,
+    and far below what zero torque gives; the env never sees |action| > 1.
+    (At the 25 Hz env-step rate the tracking is sensitive to the gains: a
+    stiffer or less damped PD overshoots, see docs/learning.md.)"""
+    params, _ = load_params(ENV)
+    env = gym.make(ENV)
+    obs, _ = env.reset(seed=3)
+    controller = SerpenoidController(params, 3, 1.0, 0.04)
+    reference = []
+    for _ in range(25):
+        obs, *_ = env.step(controller.act(obs))
+        reference.append(obs[:2].copy())
+    reference = np.array(reference)
+
+    def mean_error(kp, kd):
+        tracker = JointTargetAction(gym.make(ENV), kp=kp, kd=kd, reference_rate=reference_rate)
+        obs, _ = tracker.reset(seed=3)
+        errors = []
+        for target in reference:
+            assert np.all(np.abs(tracker.pd.torque_action(target / (math.pi / 2), obs, tracker._previous)) <= 1.0)
+            obs, *_ = tracker.step((target / (math.pi / 2)).astype(np.float32))
+            errors.append(np.abs(obs[:2] - target).mean())
+        return float(np.mean(errors))
+
+    size = float(np.abs(reference).mean())
+    tracked = mean_error(kp, kd)
+    untracked = mean_error(0.0, 1e-9)  # (almost) no torque
+    assert tracked < 0.4 * size, (tracked, size)
+    assert tracked < 0.5 * untracked, (tracked, untracked)
+
+
+def test_vector_wrappers_match_the_single_env_wrappers():
+    spec = {"joint_target": {"kp": 2.0, "kd": 0.1}, "phase_observation": {"frequencies": [30.0, 5.0]}}
+    single = wrap_env(gym.make(ENV), spec)
+    vector = wrap_vector_env(gym.make_vec(ENV, num_envs=1, vectorization_mode="vector_entry_point"), spec)
+    assert single.observation_space.shape == (2 + 2 + 2 + 2 + 4,)
+    assert vector.single_observation_space == single.observation_space
+    obs, _ = single.reset(seed=7)
+    vobs, _ = vector.reset(seed=7)
+    np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        action = rng.uniform(-1, 1, 2).astype(np.float32)
+        obs, *_ = single.step(action)
+        vobs, *_ = vector.step(action[None])
+        np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
+
+
+def test_phase_clock_runs_with_env_time_and_restarts_on_autoreset():
+    omega = 10.0
+    env = PhaseObservation(gym.make(ENV, max_episode_steps=5), frequencies=omega)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_allclose(obs[-2:], [0.0, 1.0])
+    for k in range(1, 4):
+        obs, *_ = env.step(env.action_space.sample())
+        np.testing.assert_allclose(obs[-2:], [math.sin(omega * 0.04 * k), math.cos(omega * 0.04 * k)], atol=1e-6)
+    for mode in (AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP):
+        vec = PhaseObservationVector(gym.make_vec(ENV, num_envs=2, vectorization_mode="vector_entry_point",
+                                                  max_episode_steps=5, autoreset_mode=mode), frequencies=omega)
+        obs, _ = vec.reset(seed=0)
+        phases = []
+        for _ in range(7):
+            obs, _, terminated, truncated, info = vec.step(np.zeros((2, 2), np.float32))
+            phases.append(obs[0, -2:].copy())
+            if mode == AutoresetMode.SAME_STEP and truncated[0]:
+                # the episode's last observation keeps its clock (5 steps), the returned one restarts
+                final = info["final_obs"][0]
+                np.testing.assert_allclose(final[-2:], [math.sin(omega * 0.2), math.cos(omega * 0.2)], atol=1e-6)
+                np.testing.assert_allclose(obs[0, -2:], [0.0, 1.0], atol=1e-6)
+        steps = [1, 2, 3, 4, 0, 1, 2] if mode == AutoresetMode.SAME_STEP else [1, 2, 3, 4, 5, 0, 1]
+        expected = [[math.sin(omega * 0.04 * s), math.cos(omega * 0.04 * s)] for s in steps]
+        np.testing.assert_allclose(np.array(phases), expected, atol=1e-6)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ({"joint_targets": {}}, "env_wrapper name must be one of ['joint_target', 'phase_observation'], got 'joint_targets'"),
+    ("torque_mode", "env_wrapper name must be one of"),
+    ({"joint_target": {"kp": -1.0}}, "kp must be a finite number >= 0"),
+    ({"joint_target": {"gain": 1.0}}, "env_wrapper 'joint_target': "),
+    ({"phase_observation": {"frequencies": []}}, "frequencies must be a number or a non-empty list"),
+    ({"joint_target": {"kp": 0.0, "kd": 0.0}}, "joint_target needs kp > 0 or kd > 0"),
+    ({"joint_target": {"reference_rate": "exact"}}, "reference_rate must be one of ['difference', 'zero'], got 'exact'"),
+])
+def test_bad_wrapper_specs_are_rejected_with_one_line(spec, message):
+    with pytest.raises(ValueError) as info:
+        wrap_env(gym.make(ENV), spec)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_spec_forms():
+    assert parse_env_wrapper(None) == []
+    assert parse_env_wrapper("joint_target") == [("joint_target", {})]
+    assert parse_env_wrapper(["phase_observation", {"joint_target": {"kp": 2}}]) == [
+        ("phase_observation", {}), ("joint_target", {"kp": 2})]
+    assert isinstance(JointTargetActionVector(gym.make_vec(ENV, num_envs=2, vectorization_mode="vector_entry_point")),
+                      JointTargetActionVector)
+
+
+def test_train_config_rejects_a_bad_wrapper_name_in_one_line():
+    from train.config import ConfigError, build_config
+
+    with pytest.raises(ConfigError) as info:
+        build_config("ppo", "snake_env/Snake12-v1", overrides=["env_wrapper={joint_targte: {kp: 1.0}}"])
+    assert "env_wrapper name must be one of" in str(info.value) and "\n" not in str(info.value)
