@@ -68,15 +68,15 @@ class SnakeEnv(TaskEnvBase, gym.Env):
         self._has_reset = True
         if self.render_mode == "human":
             self.render()
-        return self._first(self._batch.observation()), self._first(self._batch.reset_info())
+        return self._first(self._batch.observation()), self._first_info(self._batch.reset_info())
 
     def step(self, action):
         if not self._has_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         # checked here (not only in the batch) so that an error names the single env's shape
         action = check_actions(action, self.action_space.shape)
-        rewards, terminated, info = self._batch.step(action[None])
-        info = self._first(info)
+        rewards, terminated, info = self._batch.step(action[None], checked=True)
+        info = self._first_info(info)
         if info["sim_failure"]:
             warnings.warn("snake_env: the simulated state became non-finite; the step was undone and the episode "
                           "truncated (info['sim_failure'] = True)", RuntimeWarning, stacklevel=2)
@@ -88,13 +88,16 @@ class SnakeEnv(TaskEnvBase, gym.Env):
                 info["sim_failure"], info)
 
     @staticmethod
-    def _first(batched):
-        """Row 0 of a batched observation or info: arrays for observations, Python scalars for info."""
-        if isinstance(batched, np.ndarray):
-            return batched[0]
-        if all(isinstance(v, np.ndarray) and v.ndim > 1 for v in batched.values()):  # a Dict observation
-            return {key: value[0] for key, value in batched.items()}
-        return {key: value[0].item() if value.ndim == 1 else value[0] for key, value in batched.items()}
+    def _first(obs):
+        """Row 0 of a batched observation (an array, or a dict of arrays for goal tasks)."""
+        if isinstance(obs, dict):
+            return {key: value[0] for key, value in obs.items()}
+        return obs[0]
+
+    @staticmethod
+    def _first_info(info):
+        """Row 0 of a batched info as Python scalars."""
+        return {key: (bool(value[0]) if value.dtype == np.bool_ else float(value[0])) for key, value in info.items()}
 
     def _restart_trail(self):
         aux = self._batch.aux[0]
