@@ -117,10 +117,9 @@ class SnakeBatch:
         a = actions if checked else check_actions(actions, self.torques.shape)
         np.multiply(a, self.config.max_torque, out=self.torques)
         np.copyto(self.q_prev, self.q)
-        cm_prev = self.aux[:, AUX_X:AUX_Y + 1].copy()  # AUX_X, AUX_Y are adjacent columns
         physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux)
         ctx = StepContext(action=a, torques=self.torques, q_prev=self.q_prev, q=self.q, u=self.u, aux=self.aux,
-                          cm_prev=cm_prev, dt=self.config.dt)
+                          dt=self.config.dt)
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         info = common_step_info(ctx)
         info.update(task_info)

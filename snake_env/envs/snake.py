@@ -27,6 +27,7 @@ from .physics import AUX_X, AUX_Y
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
 # the forward task's info keys (``env.step_info_keys`` gives any task's)
 STEP_INFO_KEYS = COMMON_STEP_INFO_KEYS + ForwardTask.step_info_keys
+BOOL_INFO_KEYS = frozenset(("sim_failure", "is_success"))  # info flags; every other info value is a float
 __all__ = ["SnakeEnv", "SnakeGoalEnv", "STEP_INFO_KEYS", "RESET_INFO_KEYS", "TRAIL_LENGTH"]
 
 
@@ -97,7 +98,11 @@ class SnakeEnv(TaskEnvBase, gym.Env):
     @staticmethod
     def _first_info(info):
         """Row 0 of a batched info as Python scalars."""
-        return {key: (bool(value[0]) if value.dtype == np.bool_ else float(value[0])) for key, value in info.items()}
+        # one conversion for all keys (bool arrays become 0.0/1.0 here and bool again below)
+        out = dict(zip(info, np.concatenate(tuple(info.values())).tolist()))
+        for key in BOOL_INFO_KEYS.intersection(out):
+            out[key] = bool(out[key])
+        return out
 
     def _restart_trail(self):
         aux = self._batch.aux[0]

@@ -44,7 +44,7 @@ class StepContext:
 
     action: (B, n-1) clipped actions; torques (N m); q_prev, q: (B, n+2) before /
     after; u: (B, 2); aux: (B, AUX_SIZE) of :mod:`snake_env.envs.physics`;
-    cm_prev: (B, 2) whole-snake CM before the step (m); dt: env step (s).
+    dt: env step (s).
     """
 
     action: np.ndarray
@@ -53,7 +53,6 @@ class StepContext:
     q: np.ndarray
     u: np.ndarray
     aux: np.ndarray
-    cm_prev: np.ndarray
     dt: float
 
     @property
