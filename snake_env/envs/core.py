@@ -85,6 +85,7 @@ class SnakeBatch:
         self.torques = np.zeros((B, n - 1))
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
+        self.q_prev = np.zeros((B, n + 2))
         self.task_state = task.init_state(B)
 
     def observation(self):
@@ -110,17 +111,18 @@ class SnakeBatch:
     def reset_info(self) -> dict[str, np.ndarray]:
         return common_reset_info(self.aux)
 
-    def step(self, actions) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,))."""
-        a = check_actions(actions, self.torques.shape)
+    def step(self, actions, checked: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,)).
+        ``checked``: the actions are already a float64 copy clipped by :func:`check_actions`."""
+        a = actions if checked else check_actions(actions, self.torques.shape)
         np.multiply(a, self.config.max_torque, out=self.torques)
-        q_prev = self.q.copy()
-        cm_prev = self.aux[:, [AUX_X, AUX_Y]].copy()
+        np.copyto(self.q_prev, self.q)
         physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux)
-        ctx = StepContext(action=a, torques=self.torques, q_prev=q_prev, q=self.q, u=self.u, aux=self.aux,
-                          cm_prev=cm_prev, dt=self.config.dt)
+        ctx = StepContext(action=a, torques=self.torques, q_prev=self.q_prev, q=self.q, u=self.u, aux=self.aux,
+                          dt=self.config.dt)
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
-        info = {**common_step_info(ctx), **task_info}
+        info = common_step_info(ctx)
+        info.update(task_info)
         failed = ctx.failed
         if failed.any():
             # A failed step was undone (the pre-step state is kept): it is not an outcome of
@@ -131,7 +133,7 @@ class SnakeBatch:
             for key in info:
                 if key.startswith("reward_"):
                     info[key] = np.where(failed, 0.0, info[key])
-        return rewards, terminated, {key: info[key] for key in self.step_info_keys}
+        return rewards, terminated, info
 
     def failure_reasons(self, rows: np.ndarray) -> list[str]:
         """The distinct reasons (:data:`physics.FAILURE_REASONS`) of the failed ``rows`` of the last step."""

@@ -27,6 +27,7 @@ from .physics import AUX_X, AUX_Y
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
 # the forward task's info keys (``env.step_info_keys`` gives any task's)
 STEP_INFO_KEYS = COMMON_STEP_INFO_KEYS + ForwardTask.step_info_keys
+BOOL_INFO_KEYS = frozenset(("sim_failure", "is_success"))  # info flags; every other info value is a float
 __all__ = ["SnakeEnv", "SnakeGoalEnv", "STEP_INFO_KEYS", "RESET_INFO_KEYS", "TRAIL_LENGTH"]
 
 
@@ -68,15 +69,15 @@ class SnakeEnv(TaskEnvBase, gym.Env):
         self._has_reset = True
         if self.render_mode == "human":
             self.render()
-        return self._first(self._batch.observation()), self._first(self._batch.reset_info())
+        return self._first(self._batch.observation()), self._first_info(self._batch.reset_info())
 
     def step(self, action):
         if not self._has_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         # checked here (not only in the batch) so that an error names the single env's shape
         action = check_actions(action, self.action_space.shape)
-        rewards, terminated, info = self._batch.step(action[None])
-        info = self._first(info)
+        rewards, terminated, info = self._batch.step(action[None], checked=True)
+        info = self._first_info(info)
         if info["sim_failure"]:
             warnings.warn(f"snake_env: simulation failure ({self._batch.failure_reasons(np.zeros(1, int))[0]}); the "
                           "step was undone, reward 0 and the episode truncated (info['sim_failure'] = True)",
@@ -89,13 +90,20 @@ class SnakeEnv(TaskEnvBase, gym.Env):
                 info["sim_failure"], info)
 
     @staticmethod
-    def _first(batched):
-        """Row 0 of a batched observation or info: arrays for observations, Python scalars for info."""
-        if isinstance(batched, np.ndarray):
-            return batched[0]
-        if all(isinstance(v, np.ndarray) and v.ndim > 1 for v in batched.values()):  # a Dict observation
-            return {key: value[0] for key, value in batched.items()}
-        return {key: value[0].item() if value.ndim == 1 else value[0] for key, value in batched.items()}
+    def _first(obs):
+        """Row 0 of a batched observation (an array, or a dict of arrays for goal tasks)."""
+        if isinstance(obs, dict):
+            return {key: value[0] for key, value in obs.items()}
+        return obs[0]
+
+    @staticmethod
+    def _first_info(info):
+        """Row 0 of a batched info as Python scalars."""
+        # one conversion for all keys (bool arrays become 0.0/1.0 here and bool again below)
+        out = dict(zip(info, np.concatenate(tuple(info.values())).tolist()))
+        for key in BOOL_INFO_KEYS.intersection(out):
+            out[key] = bool(out[key])
+        return out
 
     def _restart_trail(self):
         aux = self._batch.aux[0]

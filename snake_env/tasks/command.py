@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snake_env.envs.config import setting
+from snake_env.envs.physics import AUX_VX, AUX_VY
 
 from .base import (DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, box_with_extras, link_centers, mean_heading,
                    squared_norm)
@@ -121,7 +122,7 @@ class CommandTask(Task):
         heading_prev = mean_heading(ctx.q_prev, n)
         heading = mean_heading(ctx.q, n)
         mid = 0.5 * (heading_prev + heading)
-        velocity = (ctx.cm - ctx.cm_prev) / ctx.dt
+        velocity = ctx.aux[:, AUX_VX:AUX_VY + 1]  # CM displacement over the step / dt (m/s)
         speed = velocity[:, 0] * np.cos(mid) + velocity[:, 1] * np.sin(mid)
         yaw_rate = (heading - heading_prev) / ctx.dt
         # first-order low-pass filter, exact for a constant input over the step
