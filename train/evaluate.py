@@ -5,6 +5,7 @@ Examples::
     snake-eval runs/Snake5-v0__ppo__s0__20260101-120000 --episodes 5 --json eval.json
     snake-eval runs/.../checkpoints/model_200000_steps.zip --plot cm.png --video snake.gif
     snake-eval --baseline serpenoid --env snake_env/Snake5-v0 --json serpenoid.json
+    snake-eval --onnx policy.onnx --episodes 5   # onnxruntime only: neither torch nor SB3 is imported
 
 The env id, env kwargs and VecNormalize statistics come from the run's
 ``config.yaml`` and the statistics file saved beside the model; the
@@ -37,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="snake-eval", description="Evaluate a saved snake policy headlessly.")
     parser.add_argument("target", nargs="?", help="run directory or model .zip (omit with --baseline)")
     parser.add_argument("--baseline", choices=["serpenoid"], help="evaluate a non-learned controller instead")
+    parser.add_argument("--onnx", help="evaluate a policy exported by snake-export (onnxruntime only, no torch)")
     parser.add_argument("--env", dest="env_id", help="env id (required with --baseline; for a model it must match)")
     parser.add_argument("--episodes", type=int, default=5, help="number of episodes (default 5)")
     mode = parser.add_mutually_exclusive_group()
@@ -162,12 +164,16 @@ def check_outputs(args) -> None:
                             "or use a .gif path") from None
     if args.plot and Path(args.plot).suffix != ".png":
         raise EvalError(f"--plot must be a .png path, got {args.plot!r}")
-    if args.baseline and args.target:
-        raise EvalError("give either a run directory/model or --baseline, not both")
+    given = [name for name, value in (("a run directory/model", args.target), ("--baseline", args.baseline),
+                                      ("--onnx", args.onnx)) if value]
+    if len(given) > 1:
+        raise EvalError(f"give one of a run directory/model, --baseline or --onnx, not {' and '.join(given)}")
     if args.baseline and not args.env_id:
         raise EvalError("--baseline serpenoid needs --env ID")
-    if not args.baseline and not args.target:
-        raise EvalError("give a run directory or model file (or --baseline serpenoid --env ID)")
+    if not given:
+        raise EvalError("give a run directory or model file (or --baseline serpenoid --env ID, or --onnx FILE)")
+    if args.onnx and not args.deterministic:
+        raise EvalError("--onnx policies are deterministic; drop --stochastic")
 
 
 def policy_actor(args):
@@ -205,6 +211,28 @@ def policy_actor(args):
     return env_id, env_kwargs, act, lambda: None, title, {"algo": loaded.algo, "model": str(files.model)}
 
 
+def onnx_actor(args):
+    """(env_id, env_kwargs, act(obs), reset(), description, meta) of an exported ONNX policy."""
+    from agents.onnx_policy import OnnxPolicy, OnnxPolicyError
+
+    try:
+        policy = OnnxPolicy(args.onnx)
+    except OnnxPolicyError as exc:
+        raise EvalError(str(exc)) from None
+    if args.env_id and args.env_id != policy.env_id:
+        raise EvalError(f"{args.onnx} was exported for {policy.env_id}, not {args.env_id}")
+    env = make_env(policy.env_id, policy.env_kwargs, render=False)
+    try:
+        policy.check_spaces(env.observation_space, env.action_space)
+    except OnnxPolicyError as exc:
+        raise EvalError(str(exc)) from None
+    finally:
+        env.close()
+    algo = policy.metadata.get("algo", "onnx")
+    title = f"{algo.upper()} {args.onnx} on {policy.env_id} (ONNX, onnxruntime; deterministic)"
+    return policy.env_id, policy.env_kwargs, policy.act, lambda: None, title, {"algo": algo, "onnx": str(args.onnx)}
+
+
 def serpenoid_actor(args):
     from agents.search import DEFAULT_OUTPUT, env_geometry, load_params
     from agents.serpenoid import SerpenoidController
@@ -225,6 +253,8 @@ def evaluate(args) -> dict:
     check_outputs(args)
     if args.baseline:
         env_id, env_kwargs, act, reset, title, meta = serpenoid_actor(args)
+    elif args.onnx:
+        env_id, env_kwargs, act, reset, title, meta = onnx_actor(args)
     else:
         env_id, env_kwargs, act, reset, title, meta = policy_actor(args)
     if not args.deterministic:

@@ -1,5 +1,6 @@
 """snake-export: the ONNX graph reproduces model.predict(normalize(obs), deterministic=True)
-for PPO and SAC, with and without VecNormalize; bad inputs fail with one line."""
+for PPO and SAC, with and without VecNormalize; the onnxruntime runner needs neither
+torch nor SB3 and reports snake-eval's metrics; bad inputs fail with one line."""
 
 from __future__ import annotations
 
@@ -93,6 +94,54 @@ def test_onnx_actions_equal_sb3_predict(runs, tmp_path, algo, normalize):
         assert raw.shape == batched.shape
 
 
+FORBID_HOOK = """
+import importlib.abc, runpy, sys
+class Forbid(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("torch", "stable_baselines3"):
+            raise ImportError(f"{name} is forbidden in the ONNX deploy path")
+        return None
+sys.meta_path.insert(0, Forbid())
+"""
+FORBID_TORCH = FORBID_HOOK + """
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+def eval_json(path: Path, *argv) -> dict:
+    from train.evaluate import main as eval_main
+
+    assert eval_main([*map(str, argv), "--json", str(path)]) == 0
+    return json.loads(path.read_text())
+
+
+def test_onnx_runner_without_torch_matches_snake_eval(runs, tmp_path):
+    run_dir = runs[("ppo", True)]
+    out = tmp_path / "policy.onnx"
+    assert export_main([str(run_dir), "--out", str(out)]) == 0
+    reference = eval_json(tmp_path / "sb3.json", run_dir, "--episodes", "2", "--seed", "7")
+    via_onnx = eval_json(tmp_path / "onnx.json", "--onnx", out, "--episodes", "2", "--seed", "7")
+    assert [e["length"] for e in via_onnx["episodes"]] == [e["length"] for e in reference["episodes"]]
+    for ours, theirs in zip(via_onnx["episodes"], reference["episodes"]):
+        for key in ("return", "forward_velocity", "distance", "x_displacement"):
+            assert ours[key] == pytest.approx(theirs[key], abs=1e-6), key
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", FORBID_TORCH, str(REPO / "examples" / "run_onnx.py"), str(out),
+                           "--episodes", "2", "--seed", "7"], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    rows = [line.split() for line in proc.stdout.splitlines() if line.split()[:1] in (["0"], ["1"])]
+    assert [int(r[1]) for r in rows] == [7, 8]
+    for row, theirs in zip(rows, reference["episodes"]):
+        assert float(row[2]) == pytest.approx(theirs["return"], abs=1e-3)  # printed with 3 decimals
+        assert float(row[3]) == pytest.approx(theirs["forward_velocity"], abs=1e-4)
+    # the hook does forbid: importing torch (or snake-eval's SB3 path) under it fails
+    proc = subprocess.run([sys.executable, "-c", FORBID_HOOK + "import torch\n"], capture_output=True, text=True,
+                          env=env, timeout=300)
+    assert proc.returncode != 0 and "forbidden" in proc.stderr
+
+
 def run_cli(*argv):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     return subprocess.run([sys.executable, "-m", "train.export", *map(str, argv)], capture_output=True, text=True,
@@ -135,3 +184,22 @@ def test_export_errors_are_one_line(runs, tmp_path):
     assert proc.returncode == 2 and "another env or n_links" in proc.stderr and proc.stderr.count("\n") == 1
     assert not (tmp_path / "a.onnx").exists() and not (tmp_path / "b.onnx").exists()
     locked.chmod(0o700)
+
+
+def test_snake_eval_onnx_errors(tmp_path):
+    from train.evaluate import main as eval_main
+
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"not a model")
+    for argv, message in (
+        (["--onnx", str(tmp_path / "missing.onnx")], "no such ONNX file"),
+        (["--onnx", str(garbage)], "not a readable ONNX model"),
+        (["--onnx", str(garbage), "--baseline", "serpenoid", "--env", ENV], "not --baseline and --onnx"),
+    ):
+        with pytest.raises(SystemExit) as exit_info:
+            eval_main(argv)
+        assert exit_info.value.code == 2
+    proc = subprocess.run([sys.executable, "-m", "train.evaluate", "--onnx", str(garbage)], capture_output=True,
+                          text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])})
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "not a readable ONNX model" in proc.stderr
