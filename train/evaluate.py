@@ -47,7 +47,12 @@ def build_parser() -> argparse.ArgumentParser:
     mode.add_argument("--stochastic", dest="deterministic", action="store_false", help="sample actions")
     parser.add_argument("--seed", type=int, default=0, help="seed of episode k is seed + k (default 0)")
     parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: the env's)")
-    parser.add_argument("--video", help="write the first episode as PATH.gif or PATH.mp4")
+    parser.add_argument("--video", help="write the first episode as PATH.gif or PATH.mp4, with a heads-up display "
+                                        "(time, speed, distance, return) and a scale bar")
+    parser.add_argument("--compare", metavar="serpenoid|RUN_DIR",
+                        help="with --video: the first episode of this second controller (same env and seed) "
+                             "side by side with the evaluated one")
+    parser.add_argument("--no-hud", dest="hud", action="store_false", help="plain frames in --video")
     parser.add_argument("--plot", help="write the CM trajectories as a PNG")
     parser.add_argument("--json", dest="json_path", help="write the metrics as JSON")
     parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default configs/serpenoid.yaml)")
@@ -70,25 +75,21 @@ def make_env(env_id: str, env_kwargs: dict, render: bool):
         raise EvalError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
 
 
-def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None, record_video=False):
-    """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths, frames of episode 0)."""
-    results, paths, frames = [], [], []
+def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None):
+    """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths)."""
+    results, paths = [], []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
         reset_controller()
         xy = [(info["x_position"], info["y_position"])]
         x0 = info["x_position"]
         total, speeds, steps = 0.0, [], 0
-        if record_video and episode == 0:
-            frames.append(env.render())
         while True:
             obs, reward, terminated, truncated, info = env.step(act(obs))
             total += float(reward)
             speeds.append(float(info["x_velocity"]))
             xy.append((info["x_position"], info["y_position"]))
             steps += 1
-            if record_video and episode == 0:
-                frames.append(env.render())
             if terminated or truncated or (max_steps is not None and steps >= max_steps):
                 break
         results.append({
@@ -102,7 +103,7 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
             "sim_failure": bool(info.get("sim_failure", False)),
         })
         paths.append(np.asarray(xy))
-    return results, paths, frames
+    return results, paths
 
 
 def summarize(results: list[dict]) -> dict:
@@ -130,23 +131,105 @@ def print_table(title: str, results: list[dict], summary: dict) -> None:
     print(f"{'std':>7} {'':>6} {summary['std_return']:>10.3f} {summary['std_forward_velocity']:>10.4f}")
 
 
-def write_video(frames, path: Path, fps: float) -> None:
-    import imageio.v2 as imageio
+SPEED_WINDOW_S = 1.0  # the HUD's forward speed is the mean over the last second (the gait undulates at ~4 Hz)
 
-    from train.atomic import atomic_path
 
-    if not frames:
-        raise EvalError("no frames were rendered")
-    with atomic_path(path, suffix=path.suffix) as tmp:
-        if path.suffix == ".gif":
-            # every other frame keeps GIFs small; the duration keeps real time
-            imageio.mimsave(tmp, frames[::2], duration=2000.0 / fps, loop=0)
-        else:
-            try:
-                imageio.mimsave(tmp, frames, fps=fps, macro_block_size=1)
-            except (ImportError, ValueError, RuntimeError) as exc:
-                raise EvalError(f"writing {path.suffix} needs the imageio-ffmpeg package "
-                                f"(pip install imageio-ffmpeg), or use a .gif path: {_first_line(exc)}") from None
+class VideoWriter:
+    """Append frames to PATH.gif (every other frame, real-time duration) or PATH.mp4
+    (imageio's ffmpeg plugin, every frame); the file appears atomically on close."""
+
+    def __init__(self, path: Path, fps: float):
+        self.path = Path(path)
+        self.fps = float(fps)
+        self.count = 0  # frames offered
+        self.written = 0
+
+    def __enter__(self):
+        import imageio.v2 as imageio
+
+        from train.atomic import atomic_path
+
+        self._atomic = atomic_path(self.path, suffix=self.path.suffix)
+        tmp = self._atomic.__enter__()
+        try:
+            if self.path.suffix == ".gif":
+                self._writer = imageio.get_writer(tmp, mode="I", duration=2000.0 / self.fps, loop=0)
+            else:
+                self._writer = imageio.get_writer(tmp, format="FFMPEG", mode="I", fps=self.fps, macro_block_size=1)
+        except (ImportError, ValueError, RuntimeError) as exc:
+            self._atomic.__exit__(type(exc), exc, None)
+            raise EvalError(f"writing {self.path.suffix} needs the imageio-ffmpeg package "
+                            f"(pip install imageio-ffmpeg), or use a .gif path: {_first_line(exc)}") from None
+        return self
+
+    def append(self, frame: np.ndarray) -> None:
+        # every other frame keeps GIFs small; their frame duration keeps real time
+        if self.path.suffix != ".gif" or self.count % 2 == 0:
+            self._writer.append_data(np.ascontiguousarray(frame))
+            self.written += 1
+        self.count += 1
+
+    def __exit__(self, exc_type, exc, tb):
+        self._writer.close()
+        if exc_type is None and self.written == 0:
+            exc = EvalError("no frames were rendered")
+            self._atomic.__exit__(EvalError, exc, None)
+            raise exc
+        return self._atomic.__exit__(exc_type, exc, tb)
+
+
+def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=None, hud=True):
+    """Yield the rgb frames of one episode (seed ``seed``), with the heads-up display:
+    time, forward speed (mean over the last second), distance from the origin, return,
+    and a scale bar in metres. The camera follows the snake's centre of mass."""
+    from snake_env.envs.hud import draw_hud, episode_lines
+
+    obs, info = env.reset(seed=seed)
+    reset_controller()
+    dt = float(env.unwrapped.dt)
+    window = max(1, int(round(SPEED_WINDOW_S / dt)))
+    speeds, total, steps = [], 0.0, 0
+
+    def decorate(frame):
+        if not hud:
+            return frame
+        renderer = getattr(env.unwrapped, "_renderer", None)
+        lines = episode_lines(steps * dt, float(np.mean(speeds[-window:])) if speeds else 0.0,
+                              float(info["distance_from_origin"]), total, label)
+        return draw_hud(frame, lines, getattr(renderer, "scale", None))
+
+    yield decorate(env.render())
+    while True:
+        obs, reward, terminated, truncated, info = env.step(act(obs))
+        total += float(reward)
+        speeds.append(float(info["x_velocity"]))
+        steps += 1
+        yield decorate(env.render())
+        if terminated or truncated or (max_steps is not None and steps >= max_steps):
+            return
+
+
+def side_by_side(*streams):
+    """Frames of several episodes next to each other, split by a dark 4-pixel column;
+    a finished episode holds its last frame."""
+    import itertools
+
+    last = [None] * len(streams)
+    for frames in itertools.zip_longest(*streams):
+        last = [new if new is not None else old for new, old in zip(frames, last)]
+        divider = np.full((last[0].shape[0], 4, 3), 40, np.uint8)
+        parts = [last[0]]
+        for frame in last[1:]:
+            parts += [divider, frame]
+        yield np.concatenate(parts, axis=1)
+
+
+def write_video(frames, path: Path, fps: float) -> int:
+    """Write an iterable of frames; return how many frames the file holds."""
+    with VideoWriter(path, fps) as writer:
+        for frame in frames:
+            writer.append(frame)
+    return writer.written
 
 
 def check_outputs(args) -> None:
@@ -162,6 +245,8 @@ def check_outputs(args) -> None:
         except ImportError:
             raise EvalError("writing .mp4 needs the imageio-ffmpeg package (pip install imageio-ffmpeg); "
                             "or use a .gif path") from None
+    if args.compare and not args.video:
+        raise EvalError("--compare renders a side-by-side video; give --video PATH too")
     if args.plot and Path(args.plot).suffix != ".png":
         raise EvalError(f"--plot must be a .png path, got {args.plot!r}")
     given = [name for name, value in (("a run directory/model", args.target), ("--baseline", args.baseline),
@@ -249,6 +334,43 @@ def serpenoid_actor(args):
             {"algo": "serpenoid", "params": params.to_dict()})
 
 
+def compare_actor(args, env_id, env_kwargs):
+    """(act, reset, label) of the ``--compare`` controller; it runs on the evaluated env, which must be the
+    env it was trained or searched on (the same id and env kwargs, episode length aside)."""
+    if args.compare == "serpenoid":
+        other = argparse.Namespace(**{**vars(args), "baseline": "serpenoid", "target": None, "onnx": None,
+                                      "env_id": env_id})
+        other_env_id, other_kwargs, act, reset, _, _ = serpenoid_actor(other)
+        label = "serpenoid"
+    else:
+        other = argparse.Namespace(**{**vars(args), "baseline": None, "target": args.compare, "onnx": None,
+                                      "env_id": None})
+        other_env_id, other_kwargs, act, reset, _, meta = policy_actor(other)
+        label = f"{meta['algo']} {Path(args.compare).name}"
+    physical = lambda kwargs: {k: v for k, v in kwargs.items() if k != "max_episode_steps"}  # noqa: E731
+    if other_env_id != env_id or physical(other_kwargs) != physical(env_kwargs):
+        raise EvalError(f"--compare {args.compare} runs on {other_env_id} with env_kwargs {other_kwargs}, "
+                        f"not on {env_id} with {env_kwargs}")
+    return act, reset, label
+
+
+def record_video(args, env_id, env_kwargs, act, reset, algo, compare=None) -> int:
+    """Render episode ``args.seed`` (again) into ``args.video``; with ``compare``, side by side."""
+    envs = [make_env(env_id, env_kwargs, render=True) for _ in range(2 if compare else 1)]
+    try:
+        fps = envs[0].metadata.get("render_fps", 25)
+        streams = [episode_frames(envs[0], act, reset, args.seed, args.max_steps, label=algo if compare else None,
+                                  hud=args.hud)]
+        if compare:
+            other_act, other_reset, label = compare
+            streams.append(episode_frames(envs[1], other_act, other_reset, args.seed, args.max_steps, label=label,
+                                          hud=args.hud))
+        return write_video(side_by_side(*streams) if compare else streams[0], Path(args.video), fps)
+    finally:
+        for env in envs:
+            env.close()
+
+
 def evaluate(args) -> dict:
     check_outputs(args)
     if args.baseline:
@@ -261,11 +383,10 @@ def evaluate(args) -> dict:
         from stable_baselines3.common.utils import set_random_seed
 
         set_random_seed(args.seed)  # torch sampling of stochastic actions, reproducible
-    env = make_env(env_id, env_kwargs, render=bool(args.video))
+    compare = compare_actor(args, env_id, env_kwargs) if args.compare else None
+    env = make_env(env_id, env_kwargs, render=False)
     try:
-        results, paths, frames = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps,
-                                              record_video=bool(args.video))
-        fps = env.metadata.get("render_fps", 25)
+        results, paths = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps)
     finally:
         env.close()
     summary = summarize(results)
@@ -283,8 +404,8 @@ def evaluate(args) -> dict:
         plot_trajectories(paths, Path(args.plot), f"CM trajectories: {meta['algo']} on {env_id}")
         print(f"trajectories plotted to {args.plot}")
     if args.video:
-        write_video(frames, Path(args.video), fps)
-        print(f"video written to {args.video}")
+        count = record_video(args, env_id, env_kwargs, act, reset, meta["algo"], compare)
+        print(f"video written to {args.video} ({count} frames)")
     if not all(math.isfinite(v) for v in summary.values()):
         raise EvalError("evaluation produced non-finite metrics")
     return report
