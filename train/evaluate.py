@@ -55,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-hud", dest="hud", action="store_false", help="plain frames in --video")
     parser.add_argument("--plot", help="write the CM trajectories as a PNG")
     parser.add_argument("--json", dest="json_path", help="write the metrics as JSON")
-    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default configs/serpenoid.yaml)")
+    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default ./configs/serpenoid.yaml if it "
+                             "exists, else the shipped one)")
     return parser
 
 
@@ -319,10 +320,11 @@ def onnx_actor(args):
 
 
 def serpenoid_actor(args):
-    from agents.search import DEFAULT_OUTPUT, env_geometry, load_params
+    from agents.search import env_geometry, load_params
     from agents.serpenoid import SerpenoidController
+    from train.config import config_path
 
-    path = args.serpenoid_config or DEFAULT_OUTPUT
+    path = args.serpenoid_config or config_path("serpenoid.yaml")
     try:
         params, env_kwargs = load_params(args.env_id, path)
         n_links, max_torque, dt, include_position = env_geometry(args.env_id, env_kwargs)

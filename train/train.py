@@ -35,7 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--algo", help=f"algorithm, one of {list(cfg.ALGOS)}")
     parser.add_argument("--env", dest="env_id", help="gymnasium env id, e.g. snake_env/Snake5-v0")
-    parser.add_argument("--config", help="hyperparameter YAML keyed by env id (default configs/<algo>.yaml)")
+    parser.add_argument("--config", help="hyperparameter YAML keyed by env id (default ./configs/<algo>.yaml if it "
+                                                          "exists, else the one shipped with snake_env)")
     parser.add_argument("--total-timesteps", type=int, help="environment steps to train (overrides n_timesteps)")
     parser.add_argument("--seed", type=int, help="random seed (default 0)")
     parser.add_argument("--n-envs", type=int, help="number of parallel envs (overrides n_envs)")
