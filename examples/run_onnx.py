@@ -37,7 +37,7 @@ def main(argv=None) -> int:
         parser.exit(2, f"run_onnx.py: error: {exc}\n")
     env = gym.make(policy.env_id, **policy.env_kwargs)
     policy.check_spaces(env.observation_space, env.action_space)
-    results, _, _ = run_episodes(env, policy.act, lambda: None, args.episodes, args.seed)
+    results, _ = run_episodes(env, policy.act, lambda: None, args.episodes, args.seed)
     env.close()
     print_table(f"{args.onnx} on {policy.env_id} (onnxruntime {ort.__version__}, numpy {np.__version__})",
                 results, summarize(results))
