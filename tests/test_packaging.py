@@ -73,8 +73,10 @@ def test_wheel_in_fresh_venv_trains_and_evaluates_from_any_directory(dists, tmp_
     python = venv / "bin" / "python"
     purelib = Path(run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path,
                        None).stdout.strip())
-    here = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
-    (purelib / "parent_packages.pth").write_text("\n".join(sorted(here)) + "\n")
+    # every site directory this interpreter sees (its .pth files, e.g. an editable install's finder, are not run)
+    here = [p for p in sys.path if Path(p).name in ("site-packages", "dist-packages")]
+    here += [sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]]
+    (purelib / "parent_packages.pth").write_text("\n".join(dict.fromkeys(here)) + "\n")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     env.update(OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1", MPLBACKEND="Agg")
     run([python, "-m", "pip", "install", "--no-index", "--no-build-isolation", wheel], tmp_path, env)
