@@ -95,7 +95,7 @@ class LogProgress(BaseCallback):
         buffer = getattr(self.model, "ep_info_buffer", None) or []
         ep_return = f"{np.mean([e['r'] for e in buffer]):.4g}" if len(buffer) else "n/a"
         speed = f"{self._speed_sum / self._speed_count:.3g} m/s" if self._speed_count else "n/a"
-        percent = 100.0 * steps / self.total if self.total else 100.0
+        percent = min(100.0 * steps / self.total, 100.0) if self.total else 100.0  # PPO overshoots by < 1 rollout
         line = (f"[{percent:3.0f}%] {steps}/{self.total} steps | {fps:.0f} fps | ep return {ep_return} | "
                 f"speed {speed} | elapsed {format_duration(elapsed)} | ETA {format_duration(eta)}")
         print(line, file=self.stream or sys.stdout, flush=True)
