@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.newest_ids import newest_id
+
 REPO = Path(__file__).resolve().parents[1]
 IGNORED = shutil.ignore_patterns(".git", ".venv", "runs", "docs", "tests", "__pycache__", "*.egg-info", "build",
                                  "dist", ".pytest_cache", ".hypothesis", "*.tfevents.*")
@@ -89,13 +91,13 @@ def test_wheel_in_fresh_venv_trains_and_evaluates_from_any_directory(dists, tmp_
     assert probe[0].startswith(str(purelib)) and probe[1].startswith(str(purelib / "snake_env" / "configs"))
     assert probe[2] == "None None None"  # no top-level agents/train/benchmarks
     bin_dir = venv / "bin"
-    run([bin_dir / "snake-train", "--algo", "ppo", "--env", "snake_env/Snake3-v0", "--total-timesteps", "128",
+    run([bin_dir / "snake-train", "--algo", "ppo", "--env", newest_id("Snake3"), "--total-timesteps", "128",
          "--n-envs", "2", "--run-dir", "run", "--set", "n_steps=32", "--set", "batch_size=32", "--set", "n_epochs=1",
          "--set", "env_kwargs.max_episode_steps=50", "--set", "eval_freq=64", "--set", "n_eval_episodes=1",
          "--set", "policy_kwargs.net_arch=[8]"], work, env)
     assert (work / "run" / "model.zip").is_file() and (work / "run" / "vecnormalize.pkl").is_file()
     assert "gae_lambda: 0.95" in (work / "run" / "config.yaml").read_text()  # the shipped ppo.yaml entry
-    out = run([bin_dir / "snake-eval", "--baseline", "serpenoid", "--env", "snake_env/Snake5-v0", "--episodes", "1",
+    out = run([bin_dir / "snake-eval", "--baseline", "serpenoid", "--env", newest_id("Snake5"), "--episodes", "1",
                "--max-steps", "50", "--json", "serpenoid.json"], work, env)
     assert "serpenoid gait" in out.stdout and (work / "serpenoid.json").is_file()
     out = run([bin_dir / "snake-eval", "run", "--episodes", "1"], work, env)

@@ -7,12 +7,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from tests.newest_ids import newest_id
 from snake_env.envs.hud import draw_hud, draw_text, episode_lines, hud_boxes, nice_length, text_size
 
 
 @pytest.fixture(scope="module")
 def frame_and_scale():
-    env = gym.make("snake_env/Snake5-v0", render_mode="rgb_array")
+    env = gym.make(newest_id("Snake5"), render_mode="rgb_array")
     env.reset(seed=0)
     for _ in range(20):
         env.step(env.action_space.sample())

@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from tests.newest_ids import newest_id
 from tests.train.conftest import ENV, train_args
 
 onnx = pytest.importorskip("onnx")
@@ -163,7 +164,7 @@ def test_export_errors_are_one_line(runs, tmp_path):
         ((not_zip, "--out", tmp_path / "a.onnx"), "not an SB3 model file"),
         ((run_dir, "--out", tmp_path / "a.txt"), "must end with .onnx"),
         ((run_dir, "--out", tmp_path / "nodir" / "a.onnx"), "does not exist"),
-        ((run_dir, "--out", tmp_path / "a.onnx", "--env", "snake_env/Snake5-v0"), "was trained on"),
+        ((run_dir, "--out", tmp_path / "a.onnx", "--env", newest_id("Snake5")), "was trained on"),
     ]
     from stable_baselines3 import TD3
 
@@ -180,7 +181,7 @@ def test_export_errors_are_one_line(runs, tmp_path):
     alone = tmp_path / "alone"
     alone.mkdir()
     (alone / "model.zip").write_bytes((run_dir / "model.zip").read_bytes())
-    proc = run_cli(alone, "--out", tmp_path / "b.onnx", "--env", "snake_env/Snake5-v0")
+    proc = run_cli(alone, "--out", tmp_path / "b.onnx", "--env", newest_id("Snake5"))
     assert proc.returncode == 2 and "another env or n_links" in proc.stderr and proc.stderr.count("\n") == 1
     assert not (tmp_path / "a.onnx").exists() and not (tmp_path / "b.onnx").exists()
     locked.chmod(0o700)

@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.newest_ids import newest_id
 from train.evaluate import main
 
-ENV = "snake_env/Snake3-v0"
+ENV = newest_id("Snake3")
 STEPS = 30
 
 

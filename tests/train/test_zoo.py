@@ -11,10 +11,13 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tests.newest_ids import newest_id
 from train import config as cfg
 from train.zoo import PROJECT_ONLY_KEYS, zoo_hyperparams
 
 REPO = Path(__file__).resolve().parents[2]
+ENV = newest_id("Snake3")
+ZOO_NAME = ENV.replace("/", "-")  # RL Zoo's folder name for a namespaced id
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
@@ -39,17 +42,17 @@ def test_rl_zoo_train_and_enjoy(tmp_path):
     pytest.importorskip("requests")  # rl_zoo3.enjoy needs it (the 'zoo' extra installs it)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
            "OMP_NUM_THREADS": "1"}
-    common = ["--algo", "ppo", "--env", "snake_env/Snake3-v0", "--gym-packages", "snake_env",
+    common = ["--algo", "ppo", "--env", ENV, "--gym-packages", "snake_env",
               "--env-kwargs", "max_episode_steps:50", "-f", "logs"]
-    train = subprocess.run([sys.executable, "-m", "rl_zoo3.train", *common, "-conf", "train.zoo_ppo", "-n", "256",
+    trained = subprocess.run([sys.executable, "-m", "rl_zoo3.train", *common, "-conf", "train.zoo_ppo", "-n", "256",
                             "--eval-freq", "-1", "-params", "n_envs:2", "n_steps:64", "batch_size:64", "n_epochs:1",
                             "policy_kwargs:dict(net_arch=[8])"],
                            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
-    assert train.returncode == 0, train.stderr[-2000:]
-    run = tmp_path / "logs" / "ppo" / "snake_env-Snake3-v0_1"
-    assert (run / "snake_env-Snake3-v0.zip").is_file()
-    assert (run / "snake_env-Snake3-v0" / "vecnormalize.pkl").is_file()  # normalize came from configs/ppo.yaml
-    saved = yaml.unsafe_load((run / "snake_env-Snake3-v0" / "config.yml").read_text())
+    assert trained.returncode == 0, trained.stderr[-2000:]
+    run = tmp_path / "logs" / "ppo" / f"{ZOO_NAME}_1"
+    assert (run / f"{ZOO_NAME}.zip").is_file()
+    assert (run / ZOO_NAME / "vecnormalize.pkl").is_file()  # normalize came from configs/ppo.yaml
+    saved = yaml.unsafe_load((run / ZOO_NAME / "config.yml").read_text())
     assert dict(saved)["gae_lambda"] == 0.95
     enjoy = subprocess.run([sys.executable, "-m", "rl_zoo3.enjoy", *common, "--exp-id", "1", "-n", "60",
                             "--no-render"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
