@@ -87,12 +87,29 @@ def valid_keys(algo: str) -> list[str]:
     return sorted(set(META_DEFAULTS) | set(RUN_KEYS) | set(algo_arguments(algo)))
 
 
+SHIPPED_CONFIGS = "snake_env.configs"  # the package data that holds configs/*.yaml in an installed wheel
+
+
+def shipped_config_path(name: str) -> Path:
+    """A config file shipped with snake_env: the package data ``snake_env.configs`` read
+    with importlib.resources; in a source checkout that is not installed, ``<repo>/configs``."""
+    from importlib.resources import files
+
+    try:
+        return Path(str(files(SHIPPED_CONFIGS).joinpath(name)))
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parent.parent / "configs" / name
+
+
+def config_path(name: str) -> Path:
+    """``./configs/<name>`` of the working directory when it exists (a user's own configs
+    take precedence), else the shipped one. An explicit ``--config`` bypasses both."""
+    local = Path.cwd() / "configs" / name
+    return local if local.is_file() else shipped_config_path(name)
+
+
 def default_config_path(algo: str) -> Path:
-    """``configs/<algo>.yaml`` of the source checkout, else of the working directory
-    (a non-editable install does not ship ``configs/``)."""
-    name = f"{check_algo(algo)}.yaml"
-    beside_package = Path(__file__).resolve().parent.parent / "configs" / name
-    return beside_package if beside_package.is_file() else Path.cwd() / "configs" / name
+    return config_path(f"{check_algo(algo)}.yaml")
 
 
 def coerce_scalar(value):

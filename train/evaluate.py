@@ -7,6 +7,7 @@ Examples::
     snake-eval --baseline serpenoid --env snake_env/Snake5-v1 --json serpenoid.json
     snake-eval --baseline los --env snake_env/SnakePath5-v0 --json los.json
     snake-eval --baseline steering --env snake_env/SnakeCommand5-v0
+    snake-eval --onnx policy.onnx --episodes 5   # onnxruntime only: neither torch nor SB3 is imported
 
 The env id, env kwargs and VecNormalize statistics come from the run's
 ``config.yaml`` and the statistics file saved beside the model; the
@@ -45,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--baseline", choices=list(BASELINES),
                         help="evaluate a non-learned controller instead: " +
                              "; ".join(f"{name} ({task} task)" for name, task in BASELINES.items()))
+    parser.add_argument("--onnx", help="evaluate a policy exported by snake-export (onnxruntime only, no torch)")
     parser.add_argument("--env", dest="env_id", help="env id (required with --baseline; for a model it must match)")
     parser.add_argument("--episodes", type=int, default=5, help="number of episodes (default 5)")
     mode = parser.add_mutually_exclusive_group()
@@ -53,13 +55,19 @@ def build_parser() -> argparse.ArgumentParser:
     mode.add_argument("--stochastic", dest="deterministic", action="store_false", help="sample actions")
     parser.add_argument("--seed", type=int, default=0, help="seed of episode k is seed + k (default 0)")
     parser.add_argument("--max-steps", type=int, default=None, help="cap on steps per episode (default: the env's)")
-    parser.add_argument("--video", help="write the first episode as PATH.gif or PATH.mp4")
+    parser.add_argument("--video", help="write the first episode as PATH.gif or PATH.mp4, with a heads-up display "
+                                        "(time, speed, distance, return) and a scale bar")
+    parser.add_argument("--compare", metavar="serpenoid|RUN_DIR",
+                        help="with --video: the first episode of this second controller (same env and seed) "
+                             "side by side with the evaluated one")
+    parser.add_argument("--no-hud", dest="hud", action="store_false", help="plain frames in --video")
     parser.add_argument("--plot", help="write the CM trajectories as a PNG")
     parser.add_argument("--json", dest="json_path", help="write the metrics as JSON")
     parser.add_argument("--env-kwarg", dest="env_kwargs", action="append", default=[], metavar="KEY=VALUE",
                         help="set an env kwarg (value read as YAML), e.g. path_type=circle; repeatable; "
                              "overrides the run's env_kwargs")
-    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default configs/serpenoid.yaml)")
+    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default ./configs/serpenoid.yaml if it "
+                             "exists, else the shipped one)")
     return parser
 
 
@@ -80,12 +88,12 @@ def make_env(env_id: str, env_kwargs: dict, render: bool, env_wrapper=None):
         raise EvalError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
 
 
-def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None, record_video=False):
-    """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths, frames of episode 0)."""
+def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None):
+    """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths)."""
     from train.task_metrics import EpisodeRecorder
 
     base = env.unwrapped
-    results, paths, frames = [], [], []
+    results, paths = [], []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
         recorder = EpisodeRecorder(base.task.name, base.dt, base.task.weight(base.config), info)
@@ -93,8 +101,6 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
         xy = [(info["x_position"], info["y_position"])]
         x0 = info["x_position"]
         total, speeds, steps = 0.0, [], 0
-        if record_video and episode == 0:
-            frames.append(env.render())
         while True:
             obs, reward, terminated, truncated, info = env.step(act(obs))
             total += float(reward)
@@ -102,8 +108,6 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
             recorder.add(info)
             xy.append((info["x_position"], info["y_position"]))
             steps += 1
-            if record_video and episode == 0:
-                frames.append(env.render())
             if terminated or truncated or (max_steps is not None and steps >= max_steps):
                 break
         results.append({
@@ -119,7 +123,7 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
                for key, v in recorder.metrics().items()},
         })
         paths.append(np.asarray(xy))
-    return results, paths, frames
+    return results, paths
 
 
 def summarize(results: list[dict]) -> dict:
@@ -155,23 +159,105 @@ def print_table(title: str, results: list[dict], summary: dict) -> None:
     print(f"{'std':>7} {'':>6} {summary['std_return']:>10.3f} {summary['std_forward_velocity']:>10.4f}")
 
 
-def write_video(frames, path: Path, fps: float) -> None:
-    import imageio.v2 as imageio
+SPEED_WINDOW_S = 1.0  # the HUD's forward speed is the mean over the last second (the gait undulates at ~4 Hz)
 
-    from train.atomic import atomic_path
 
-    if not frames:
-        raise EvalError("no frames were rendered")
-    with atomic_path(path, suffix=path.suffix) as tmp:
-        if path.suffix == ".gif":
-            # every other frame keeps GIFs small; the duration keeps real time
-            imageio.mimsave(tmp, frames[::2], duration=2000.0 / fps, loop=0)
-        else:
-            try:
-                imageio.mimsave(tmp, frames, fps=fps, macro_block_size=1)
-            except (ImportError, ValueError, RuntimeError) as exc:
-                raise EvalError(f"writing {path.suffix} needs the imageio-ffmpeg package "
-                                f"(pip install imageio-ffmpeg), or use a .gif path: {_first_line(exc)}") from None
+class VideoWriter:
+    """Append frames to PATH.gif (every other frame, real-time duration) or PATH.mp4
+    (imageio's ffmpeg plugin, every frame); the file appears atomically on close."""
+
+    def __init__(self, path: Path, fps: float):
+        self.path = Path(path)
+        self.fps = float(fps)
+        self.count = 0  # frames offered
+        self.written = 0
+
+    def __enter__(self):
+        import imageio.v2 as imageio
+
+        from train.atomic import atomic_path
+
+        self._atomic = atomic_path(self.path, suffix=self.path.suffix)
+        tmp = self._atomic.__enter__()
+        try:
+            if self.path.suffix == ".gif":
+                self._writer = imageio.get_writer(tmp, mode="I", duration=2000.0 / self.fps, loop=0)
+            else:
+                self._writer = imageio.get_writer(tmp, format="FFMPEG", mode="I", fps=self.fps, macro_block_size=1)
+        except (ImportError, ValueError, RuntimeError) as exc:
+            self._atomic.__exit__(type(exc), exc, None)
+            raise EvalError(f"writing {self.path.suffix} needs the imageio-ffmpeg package "
+                            f"(pip install imageio-ffmpeg), or use a .gif path: {_first_line(exc)}") from None
+        return self
+
+    def append(self, frame: np.ndarray) -> None:
+        # every other frame keeps GIFs small; their frame duration keeps real time
+        if self.path.suffix != ".gif" or self.count % 2 == 0:
+            self._writer.append_data(np.ascontiguousarray(frame))
+            self.written += 1
+        self.count += 1
+
+    def __exit__(self, exc_type, exc, tb):
+        self._writer.close()
+        if exc_type is None and self.written == 0:
+            exc = EvalError("no frames were rendered")
+            self._atomic.__exit__(EvalError, exc, None)
+            raise exc
+        return self._atomic.__exit__(exc_type, exc, tb)
+
+
+def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=None, hud=True):
+    """Yield the rgb frames of one episode (seed ``seed``), with the heads-up display:
+    time, forward speed (mean over the last second), distance from the origin, return,
+    and a scale bar in metres. The camera follows the snake's centre of mass."""
+    from snake_env.envs.hud import draw_hud, episode_lines
+
+    obs, info = env.reset(seed=seed)
+    reset_controller()
+    dt = float(env.unwrapped.dt)
+    window = max(1, int(round(SPEED_WINDOW_S / dt)))
+    speeds, total, steps = [], 0.0, 0
+
+    def decorate(frame):
+        if not hud:
+            return frame
+        renderer = getattr(env.unwrapped, "_renderer", None)
+        lines = episode_lines(steps * dt, float(np.mean(speeds[-window:])) if speeds else 0.0,
+                              float(info["distance_from_origin"]), total, label)
+        return draw_hud(frame, lines, getattr(renderer, "scale", None))
+
+    yield decorate(env.render())
+    while True:
+        obs, reward, terminated, truncated, info = env.step(act(obs))
+        total += float(reward)
+        speeds.append(float(info["x_velocity"]))
+        steps += 1
+        yield decorate(env.render())
+        if terminated or truncated or (max_steps is not None and steps >= max_steps):
+            return
+
+
+def side_by_side(*streams):
+    """Frames of several episodes next to each other, split by a dark 4-pixel column;
+    a finished episode holds its last frame."""
+    import itertools
+
+    last = [None] * len(streams)
+    for frames in itertools.zip_longest(*streams):
+        last = [new if new is not None else old for new, old in zip(frames, last)]
+        divider = np.full((last[0].shape[0], 4, 3), 40, np.uint8)
+        parts = [last[0]]
+        for frame in last[1:]:
+            parts += [divider, frame]
+        yield np.concatenate(parts, axis=1)
+
+
+def write_video(frames, path: Path, fps: float) -> int:
+    """Write an iterable of frames; return how many frames the file holds."""
+    with VideoWriter(path, fps) as writer:
+        for frame in frames:
+            writer.append(frame)
+    return writer.written
 
 
 def check_outputs(args) -> None:
@@ -187,14 +273,20 @@ def check_outputs(args) -> None:
         except ImportError:
             raise EvalError("writing .mp4 needs the imageio-ffmpeg package (pip install imageio-ffmpeg); "
                             "or use a .gif path") from None
+    if args.compare and not args.video:
+        raise EvalError("--compare renders a side-by-side video; give --video PATH too")
     if args.plot and Path(args.plot).suffix != ".png":
         raise EvalError(f"--plot must be a .png path, got {args.plot!r}")
-    if args.baseline and args.target:
-        raise EvalError("give either a run directory/model or --baseline, not both")
+    given = [name for name, value in (("a run directory/model", args.target), ("--baseline", args.baseline),
+                                      ("--onnx", args.onnx)) if value]
+    if len(given) > 1:
+        raise EvalError(f"give one of a run directory/model, --baseline or --onnx, not {' and '.join(given)}")
     if args.baseline and not args.env_id:
         raise EvalError(f"--baseline {args.baseline} needs --env ID")
-    if not args.baseline and not args.target:
-        raise EvalError("give a run directory or model file (or --baseline serpenoid --env ID)")
+    if not given:
+        raise EvalError("give a run directory or model file (or --baseline serpenoid --env ID, or --onnx FILE)")
+    if args.onnx and not args.deterministic:
+        raise EvalError("--onnx policies are deterministic; drop --stochastic")
 
 
 def policy_actor(args):
@@ -254,11 +346,34 @@ def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
     return (SerpenoidParams.from_dict(entry["params"]), speed, n_links, max_torque, dt, include_position)
 
 
-def serpenoid_actor(args):
-    from agents.search import DEFAULT_OUTPUT, env_geometry, load_params
-    from agents.serpenoid import SerpenoidController
+def onnx_actor(args):
+    """(env_id, env_kwargs, act(obs), reset(), description, meta) of an exported ONNX policy."""
+    from agents.onnx_policy import OnnxPolicy, OnnxPolicyError
 
-    path = args.serpenoid_config or DEFAULT_OUTPUT
+    try:
+        policy = OnnxPolicy(args.onnx)
+    except OnnxPolicyError as exc:
+        raise EvalError(str(exc)) from None
+    if args.env_id and args.env_id != policy.env_id:
+        raise EvalError(f"{args.onnx} was exported for {policy.env_id}, not {args.env_id}")
+    env = make_env(policy.env_id, policy.env_kwargs, render=False)
+    try:
+        policy.check_spaces(env.observation_space, env.action_space)
+    except OnnxPolicyError as exc:
+        raise EvalError(str(exc)) from None
+    finally:
+        env.close()
+    algo = policy.metadata.get("algo", "onnx")
+    title = f"{algo.upper()} {args.onnx} on {policy.env_id} (ONNX, onnxruntime; deterministic)"
+    return policy.env_id, policy.env_kwargs, policy.act, lambda: None, title, {"algo": algo, "onnx": str(args.onnx)}
+
+
+def serpenoid_actor(args):
+    from agents.search import env_geometry, load_params
+    from agents.serpenoid import SerpenoidController
+    from train.config import config_path
+
+    path = args.serpenoid_config or config_path("serpenoid.yaml")
     task = _task_of(args.env_id)
     if task != BASELINES[args.baseline]:
         raise EvalError(f"--baseline {args.baseline} drives the {BASELINES[args.baseline]} task, {args.env_id} is a "
@@ -322,10 +437,51 @@ def parse_env_kwargs(items) -> dict:
     return out
 
 
+def compare_actor(args, env_id, env_kwargs):
+    """(act, reset, label) of the ``--compare`` controller; it runs on the evaluated env, which must be the
+    env it was trained or searched on (the same id and env kwargs, episode length aside)."""
+    if args.compare == "serpenoid":
+        other = argparse.Namespace(**{**vars(args), "baseline": "serpenoid", "target": None, "onnx": None,
+                                      "env_id": env_id})
+        other_env_id, other_kwargs, act, reset, _, _ = serpenoid_actor(other)
+        label = "serpenoid"
+    else:
+        other = argparse.Namespace(**{**vars(args), "baseline": None, "target": args.compare, "onnx": None,
+                                      "env_id": None})
+        other_env_id, other_kwargs, act, reset, _, meta = policy_actor(other)
+        label = f"{meta['algo']} {Path(args.compare).name}"
+    physical = lambda kwargs: {k: v for k, v in kwargs.items() if k != "max_episode_steps"}  # noqa: E731
+    if other_env_id != env_id or physical(other_kwargs) != physical(env_kwargs):
+        raise EvalError(f"--compare {args.compare} runs on {other_env_id} with env_kwargs {other_kwargs}, "
+                        f"not on {env_id} with {env_kwargs}")
+    return act, reset, label
+
+
+def record_video(args, env_id, env_kwargs, act, reset, algo, compare=None, env_wrapper=None) -> int:
+    """Render episode ``args.seed`` (again) into ``args.video``; with ``compare``, side by side.
+    ``env_wrapper``: the evaluated policy's opt-in wrappers (the compared controller runs unwrapped)."""
+    envs = [make_env(env_id, env_kwargs, render=True, env_wrapper=env_wrapper if i == 0 else None)
+            for i in range(2 if compare else 1)]
+    try:
+        fps = envs[0].metadata.get("render_fps", 25)
+        streams = [episode_frames(envs[0], act, reset, args.seed, args.max_steps, label=algo if compare else None,
+                                  hud=args.hud)]
+        if compare:
+            other_act, other_reset, label = compare
+            streams.append(episode_frames(envs[1], other_act, other_reset, args.seed, args.max_steps, label=label,
+                                          hud=args.hud))
+        return write_video(side_by_side(*streams) if compare else streams[0], Path(args.video), fps)
+    finally:
+        for env in envs:
+            env.close()
+
+
 def evaluate(args) -> dict:
     check_outputs(args)
     if args.baseline:
         env_id, env_kwargs, act, reset, title, meta = serpenoid_actor(args)
+    elif args.onnx:
+        env_id, env_kwargs, act, reset, title, meta = onnx_actor(args)
     else:
         env_id, env_kwargs, act, reset, title, meta = policy_actor(args)
     env_kwargs = {**env_kwargs, **parse_env_kwargs(getattr(args, "env_kwargs", None))}
@@ -333,11 +489,10 @@ def evaluate(args) -> dict:
         from stable_baselines3.common.utils import set_random_seed
 
         set_random_seed(args.seed)  # torch sampling of stochastic actions, reproducible
-    env = make_env(env_id, env_kwargs, render=bool(args.video), env_wrapper=meta.get("env_wrapper"))
+    compare = compare_actor(args, env_id, env_kwargs) if args.compare else None
+    env = make_env(env_id, env_kwargs, render=False, env_wrapper=meta.get("env_wrapper"))
     try:
-        results, paths, frames = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps,
-                                              record_video=bool(args.video))
-        fps = env.metadata.get("render_fps", 25)
+        results, paths = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps)
     finally:
         env.close()
     from train.task_metrics import summarize_task
@@ -361,8 +516,8 @@ def evaluate(args) -> dict:
         plot_trajectories(paths, Path(args.plot), f"CM trajectories: {meta['algo']} on {env_id}")
         print(f"trajectories plotted to {args.plot}")
     if args.video:
-        write_video(frames, Path(args.video), fps)
-        print(f"video written to {args.video}")
+        count = record_video(args, env_id, env_kwargs, act, reset, meta["algo"], compare, meta.get("env_wrapper"))
+        print(f"video written to {args.video} ({count} frames)")
     if not all(math.isfinite(v) for v in summary.values()):
         raise EvalError("evaluation produced non-finite metrics")
     return report

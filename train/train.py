@@ -25,6 +25,7 @@ from train import config as cfg
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+PROGRESS_MODES = ("auto", "bar", "lines", "none")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,7 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--algo", help=f"algorithm, one of {list(cfg.ALGOS)}")
     parser.add_argument("--env", dest="env_id", help="gymnasium env id, e.g. snake_env/Snake5-v1")
-    parser.add_argument("--config", help="hyperparameter YAML keyed by env id (default configs/<algo>.yaml)")
+    parser.add_argument("--config", help="hyperparameter YAML keyed by env id (default ./configs/<algo>.yaml if it "
+                                                          "exists, else the one shipped with snake_env)")
     parser.add_argument("--total-timesteps", type=int, help="environment steps to train (overrides n_timesteps)")
     parser.add_argument("--seed", type=int, help="random seed (default 0)")
     parser.add_argument("--n-envs", type=int, help="number of parallel envs (overrides n_envs)")
@@ -42,7 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a config key; dotted keys reach into env_kwargs/policy_kwargs; repeatable")
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
-    parser.add_argument("--no-progress-bar", action="store_true", help="disable the progress bar")
+    parser.add_argument("--progress", choices=PROGRESS_MODES, default="auto",
+                        help="auto (default): a progress bar on a terminal, a line every 10%% or minute otherwise; "
+                             "bar; lines; none")
+    parser.add_argument("--no-progress-bar", action="store_true", help="no progress output (same as --progress none)")
     parser.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (0, 1 or 2)")
     return parser
 
@@ -113,7 +118,33 @@ def install_interrupt_handlers() -> None:
         signal.signal(signal.SIGTERM, _interrupt)
 
 
-def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, verbose: int = 0) -> int:
+def progress_mode(requested: str) -> str:
+    """``auto``: SB3's redrawn bar on a terminal, plain log lines otherwise."""
+    from train.progress import stdout_is_terminal
+
+    if requested == "auto":
+        return "bar" if stdout_is_terminal() else "lines"
+    return requested
+
+
+def next_steps_hint(run_dir: Path) -> str:
+    """The commands that evaluate, render and export a finished run."""
+    import shlex
+
+    try:
+        import imageio_ffmpeg  # noqa: F401
+        video = "policy.mp4"
+    except ImportError:
+        video = "policy.gif"
+    d = shlex.quote(str(run_dir))
+    q = lambda name: shlex.quote(str(run_dir / name))  # noqa: E731
+    return (f"evaluate and render: snake-eval {d} --episodes 10 --json {q('eval.json')} "
+            f"--plot {q('trajectories.png')} --video {q(video)}\n"
+            f"export to ONNX:      snake-export {d} --out {q('policy.onnx')}")
+
+
+def run(config: dict, run_dir: Path, resuming: bool, progress_bar=True, verbose: int = 0) -> int:
+    """Train (or resume) one run; ``progress_bar``: True/"auto", "bar", "lines", False/"none"."""
     import torch
     from stable_baselines3.common.callbacks import CallbackList, EvalCallback
     from stable_baselines3.common.logger import configure
@@ -170,12 +201,17 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, 
                      deterministic=True, log_path=str(run_dir / "eval"), best_model_save_path=None,
                      callback_on_new_best=cb.SaveBestWithStats(best_dir), verbose=verbose),
     ])
+    mode = progress_mode({True: "auto", False: "none"}.get(progress_bar, progress_bar))
+    if mode == "lines":
+        from train.progress import LogProgress
+
+        callbacks.callbacks.append(LogProgress(config["n_timesteps"]))  # initialized by learn() with the others
     remaining = config["n_timesteps"] - model.num_timesteps
     interrupted = False
     started = time.perf_counter()
     try:
         if remaining > 0:
-            model.learn(total_timesteps=remaining, callback=callbacks, progress_bar=progress_bar,
+            model.learn(total_timesteps=remaining, callback=callbacks, progress_bar=mode == "bar",
                         reset_num_timesteps=start is None, tb_log_name="tb")
     except KeyboardInterrupt:
         interrupted = True
@@ -199,6 +235,7 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar: bool = True, 
     eval_env.close()
     state = "interrupted" if interrupted else "finished"
     print(f"{state} after {model.num_timesteps} timesteps ({wall:.0f} s); model saved to {run_dir / 'model.zip'}")
+    print(next_steps_hint(run_dir))
     return EXIT_INTERRUPTED if interrupted else 0
 
 
@@ -207,7 +244,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         config, run_dir, resuming = prepare(args)
-        return run(config, run_dir, resuming, progress_bar=not args.no_progress_bar, verbose=args.verbose)
+        return run(config, run_dir, resuming, progress_bar="none" if args.no_progress_bar else args.progress,
+                   verbose=args.verbose)
     except cfg.ConfigError as exc:
         parser.exit(EXIT_USAGE, f"snake-train: error: {exc}\n")
     except KeyboardInterrupt:

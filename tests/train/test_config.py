@@ -120,3 +120,19 @@ def test_shipped_configs_are_valid(algo):
         low = 0.95 if "Reach" in env_id and config.get("replay_buffer_class") == "HerReplayBuffer" else 0.98
         assert low <= kwargs["gamma"] <= 0.9999
         cfg.torch_policy_kwargs(config)
+
+
+def test_config_lookup_precedence(tmp_path, monkeypatch):
+    """./configs/<algo>.yaml of the working directory wins over the shipped file; --config over both."""
+    shipped = cfg.shipped_config_path("ppo.yaml")
+    assert shipped.is_file() and shipped.parent.name == "configs"
+    monkeypatch.chdir(tmp_path)
+    assert cfg.default_config_path("ppo") == shipped  # no ./configs here
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "ppo.yaml").write_text("snake_env/Snake3-v1:\n  n_steps: 64\n  batch_size: 64\n")
+    assert cfg.default_config_path("ppo") == tmp_path / "configs" / "ppo.yaml"
+    assert cfg.build_config("ppo", "snake_env/Snake3-v1")["n_steps"] == 64
+    assert cfg.default_config_path("sac") == cfg.shipped_config_path("sac.yaml")  # per file
+    with pytest.raises(cfg.ConfigError, match="no ppo hyperparameters for env 'snake_env/Snake5-v1'"):
+        cfg.build_config("ppo", "snake_env/Snake5-v1")
+    assert cfg.build_config("ppo", "snake_env/Snake5-v1", config_path=shipped)["n_envs"] == 32

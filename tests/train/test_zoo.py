@@ -1,0 +1,60 @@
+"""RL Baselines3 Zoo interop: our configs as zoo hyperparameters, and a tiny
+rl_zoo3.train + rl_zoo3.enjoy round trip (skipped when rl_zoo3 is not installed)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.newest_ids import newest_id
+from train import config as cfg
+from train.zoo import PROJECT_ONLY_KEYS, zoo_hyperparams
+
+REPO = Path(__file__).resolve().parents[2]
+ENV = newest_id("Snake3")
+ZOO_NAME = ENV.replace("/", "-")  # RL Zoo's folder name for a namespaced id
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_zoo_hyperparams_cover_our_configs_without_project_keys(algo):
+    import torch.nn as nn  # noqa: F401  (the zoo evals policy_kwargs with nn in scope)
+
+    ours = yaml.safe_load(cfg.default_config_path(algo).read_text())
+    zoo = zoo_hyperparams(algo)
+    assert set(zoo) == {k for k, v in ours.items() if isinstance(v, dict)}
+    allowed = set(cfg.algo_arguments(algo)) | {"policy", "n_timesteps", "n_envs", "normalize", "policy_kwargs",
+                                                 "env_kwargs"}
+    for env_id, entry in zoo.items():
+        assert not set(entry) & set(PROJECT_ONLY_KEYS), env_id
+        assert set(entry) <= allowed, (env_id, set(entry) - allowed)
+        if "policy_kwargs" in entry:
+            assert isinstance(eval(entry["policy_kwargs"]), dict)
+        assert entry["n_timesteps"] == cfg.coerce_scalar(ours[env_id])["n_timesteps"]
+
+
+def test_rl_zoo_train_and_enjoy(tmp_path):
+    pytest.importorskip("rl_zoo3")
+    pytest.importorskip("requests")  # rl_zoo3.enjoy needs it (the 'zoo' extra installs it)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
+           "OMP_NUM_THREADS": "1"}
+    common = ["--algo", "ppo", "--env", ENV, "--gym-packages", "snake_env",
+              "--env-kwargs", "max_episode_steps:50", "-f", "logs"]
+    trained = subprocess.run([sys.executable, "-m", "rl_zoo3.train", *common, "-conf", "train.zoo_ppo", "-n", "256",
+                            "--eval-freq", "-1", "-params", "n_envs:2", "n_steps:64", "batch_size:64", "n_epochs:1",
+                            "policy_kwargs:dict(net_arch=[8])"],
+                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert trained.returncode == 0, trained.stderr[-2000:]
+    run = tmp_path / "logs" / "ppo" / f"{ZOO_NAME}_1"
+    assert (run / f"{ZOO_NAME}.zip").is_file()
+    assert (run / ZOO_NAME / "vecnormalize.pkl").is_file()  # normalize came from configs/ppo.yaml
+    saved = yaml.unsafe_load((run / ZOO_NAME / "config.yml").read_text())
+    assert dict(saved)["gae_lambda"] == 0.95
+    enjoy = subprocess.run([sys.executable, "-m", "rl_zoo3.enjoy", *common, "--exp-id", "1", "-n", "60",
+                            "--no-render"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert enjoy.returncode == 0, enjoy.stderr[-2000:]
+    assert "Episode Length 50" in enjoy.stdout

@@ -1,0 +1,242 @@
+"""``snake-export``: a saved PPO/SAC policy as one ONNX graph, raw observation -> env action.
+
+Examples::
+
+    snake-export runs/snake5_ppo --out policy.onnx
+    snake-export runs/snake5_ppo/checkpoints/model_200000_steps.zip --out policy.onnx
+    python -m train.export runs/snake5_sac --out sac.onnx
+
+The graph reproduces ``model.predict(normalize(obs), deterministic=True)`` of
+the evaluation path (:mod:`agents.policy_loading`), so it runs where neither
+PyTorch nor Stable-Baselines3 is installed (onnxruntime alone):
+
+1. VecNormalize observation normalization with the run's statistics, folded in
+   as constants: ``clip((obs - mean) / sqrt(var + epsilon), -clip_obs, clip_obs)``,
+   computed in float64 like VecNormalize, then cast to float32;
+2. the deterministic action: PPO's Gaussian mean, SAC's ``tanh`` of its mean;
+3. SB3's post-processing for a Box action space: an unsquashed action is
+   clipped to [low, high], a squashed one (SAC) is rescaled from [-1, 1] to
+   [low, high].
+
+Input ``obs`` (batch, obs_size) float32; output ``action`` (batch, n_links - 1)
+float32 joint torques in units of ``max_torque``. The model's metadata
+(``metadata_props``) holds the env id, its env kwargs (JSON), n_links, the
+observation and action sizes, the algorithm and the snake_env version; the
+graph is validated with ``onnx.checker`` before it is written (atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import warnings
+from pathlib import Path
+
+EXIT_ERROR = 2
+OPSET = 17
+INPUT_NAME = "obs"
+OUTPUT_NAME = "action"
+
+
+class ExportError(ValueError):
+    """A one-line CLI error."""
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="snake-export",
+        description="Export a saved PPO/SAC snake policy (with its VecNormalize statistics) to ONNX.")
+    parser.add_argument("target", help="run directory or model .zip written by snake-train")
+    parser.add_argument("--out", required=True, help="output path, must end with .onnx")
+    parser.add_argument("--env", dest="env_id", help="env id (needed when no config.yaml is beside the model; "
+                                                     "otherwise it must match the run's)")
+    parser.add_argument("--opset", type=int, default=OPSET, help=f"ONNX opset (default {OPSET})")
+    return parser
+
+
+def check_output(path: Path) -> None:
+    if path.suffix != ".onnx":
+        raise ExportError(f"--out must end with .onnx, got {str(path)!r}")
+    if path.is_dir():
+        raise ExportError(f"--out {path} is a directory")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ExportError(f"--out: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ExportError(f"--out: {path} is not writable")
+
+
+def load_for_export(target, env_id=None):
+    """(loaded policy, env_id, env_kwargs, observation_space, action_space, n_links) of a run."""
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401  (registers the ids)
+    from agents.policy_loading import PolicyLoadError, detect_algo, load_policy, locate
+    from train.config import ConfigError, load_run_config
+
+    try:
+        files = locate(target)
+        detect_algo(files.model)  # a readable PPO/SAC archive before anything else
+        config = load_run_config(files.config) if files.config is not None else {}
+    except (PolicyLoadError, ConfigError) as exc:
+        raise ExportError(str(exc)) from None
+    if env_id and config.get("env_id") not in (None, env_id):
+        raise ExportError(f"{files.model} was trained on {config['env_id']}, not {env_id}")
+    env_id = env_id or config.get("env_id")
+    if env_id is None:
+        raise ExportError(f"no config.yaml beside {files.model}; pass --env ID")
+    env_kwargs = dict(config.get("env_kwargs") or {})
+    try:
+        env = gym.make(env_id, **env_kwargs)
+    except (ValueError, TypeError, gym.error.Error) as exc:
+        raise ExportError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
+    try:
+        if not isinstance(env.observation_space, gym.spaces.Box) or not isinstance(env.action_space, gym.spaces.Box):
+            raise ExportError(f"{env_id} has {type(env.observation_space).__name__} observations and "
+                              f"{type(env.action_space).__name__} actions; export supports Box spaces only")
+        loaded = load_policy(files.model, env.observation_space, env.action_space, config)
+        n_links = int(getattr(env.unwrapped, "n_links", env.action_space.shape[0] + 1))
+        return loaded, env_id, env_kwargs, env.observation_space, env.action_space, n_links
+    except PolicyLoadError as exc:
+        raise ExportError(str(exc)) from None
+    finally:
+        env.close()
+
+
+def policy_graph(loaded, action_space):
+    """A torch module: raw observation (batch, obs) float32 -> env action (batch, act) float32."""
+    import numpy as np
+    import torch
+    from torch import nn
+
+    policy = loaded.model.policy
+    normalizer = loaded.normalizer
+    norm = None
+    if normalizer is not None and normalizer.norm_obs:
+        rms = normalizer.obs_rms
+        norm = (np.asarray(rms.mean, np.float64), np.asarray(rms.var, np.float64),
+                float(normalizer.epsilon), float(normalizer.clip_obs))
+
+    class ObsToAction(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.policy = policy
+            self.normalize = norm is not None
+            if self.normalize:
+                mean, var, epsilon, clip = norm
+                self.register_buffer("obs_mean", torch.as_tensor(mean))
+                self.register_buffer("obs_std", torch.sqrt(torch.as_tensor(var) + epsilon))
+                self.clip_obs = clip
+            self.register_buffer("low", torch.as_tensor(action_space.low, dtype=torch.float32))
+            self.register_buffer("high", torch.as_tensor(action_space.high, dtype=torch.float32))
+            self.is_sac = loaded.algo == "sac"
+            self.squash = bool(policy.squash_output)
+
+        def forward(self, obs):
+            if self.normalize:
+                # VecNormalize._normalize_obs in float64, then .astype(float32)
+                x = torch.clamp((obs.double() - self.obs_mean) / self.obs_std, -self.clip_obs, self.clip_obs)
+                obs = x.float()
+            if self.is_sac:
+                mean_actions, _, _ = self.policy.actor.get_action_dist_params(obs)
+            else:
+                features = self.policy.extract_features(obs, self.policy.pi_features_extractor)
+                latent_pi = self.policy.mlp_extractor.forward_actor(features)
+                mean_actions = self.policy.action_net(latent_pi)
+            if self.squash:
+                # SquashedDiagGaussian / gSDE bijector mode, then BasePolicy.unscale_action
+                action = torch.tanh(mean_actions)
+                return self.low + 0.5 * (action + 1.0) * (self.high - self.low)
+            return torch.maximum(torch.minimum(mean_actions, self.high), self.low)  # np.clip(low, high)
+
+    module = ObsToAction().eval()
+    return module
+
+
+def export_onnx(target, out, env_id=None, opset: int = OPSET) -> dict:
+    """Write the ONNX graph of a saved policy to ``out``; return its metadata."""
+    import io
+
+    import onnx
+    import torch
+
+    import snake_env
+    from snake_env.atomic import atomic_write_bytes
+
+    out = Path(out)
+    check_output(out)
+    loaded, env_id, env_kwargs, obs_space, action_space, n_links = load_for_export(target, env_id)
+    module = policy_graph(loaded, action_space)
+    dummy = torch.zeros((1, obs_space.shape[0]), dtype=torch.float32)
+    buffer = io.BytesIO()
+    with torch.no_grad(), warnings.catch_warnings():
+        # the TorchScript-based exporter: a plain MLP needs neither onnxscript nor torch.export
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(module, (dummy,), buffer, input_names=[INPUT_NAME], output_names=[OUTPUT_NAME],
+                          dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
+                          opset_version=opset, dynamo=False)
+    model = onnx.load_from_string(buffer.getvalue())
+    metadata = {
+        "env_id": env_id,
+        "env_kwargs": json.dumps(env_kwargs, sort_keys=True),
+        "n_links": str(n_links),
+        "obs_size": str(obs_space.shape[0]),
+        "action_size": str(action_space.shape[0]),
+        "algo": loaded.algo,
+        "vecnormalize": "folded" if module.normalize else "none",
+        "snake_env_version": snake_env.__version__,
+        "source_model": loaded.files.model.name,
+    }
+    model.producer_name = "snake_env"
+    model.producer_version = snake_env.__version__
+    model.doc_string = (f"{loaded.algo.upper()} policy for {env_id}: raw observation -> joint torques "
+                        f"(units of max_torque), deterministic")
+    for key, value in metadata.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    try:
+        onnx.checker.check_model(model, full_check=True)
+    except onnx.checker.ValidationError as exc:
+        raise ExportError(f"the exported graph does not validate: {_first_line(exc)}") from None
+    try:
+        atomic_write_bytes(out, model.SerializeToString())
+    except OSError as exc:
+        raise ExportError(f"--out: cannot write {out}: {_first_line(exc)}") from None
+    return metadata
+
+
+def read_metadata(path) -> dict:
+    """The ``metadata_props`` of an ONNX file as a dict (needs only the onnx package)."""
+    import onnx
+
+    model = onnx.load(str(path), load_external_data=False)
+    return {entry.key: entry.value for entry in model.metadata_props}
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.opset < 13:
+            raise ExportError(f"--opset must be >= 13, got {args.opset}")
+        metadata = export_onnx(args.target, args.out, args.env_id, args.opset)
+    except ExportError as exc:
+        parser.exit(EXIT_ERROR, f"snake-export: error: {exc}\n")
+    except ImportError as exc:
+        parser.exit(EXIT_ERROR, f"snake-export: error: {exc.name or exc} is missing; "
+                                f"pip install \"snake_env[export]\"\n")
+    print(f"{metadata['algo'].upper()} policy for {metadata['env_id']} exported to {args.out} "
+          f"(obs {metadata['obs_size']} -> action {metadata['action_size']}, "
+          f"VecNormalize {metadata['vecnormalize']})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,65 @@
+"""RL Baselines3 Zoo hyperparameters from this project's configs.
+
+RL Zoo reads a hyperparameter file named with ``-conf``/``--conf-file``: a YAML
+file or a Python module with a ``hyperparams`` dict keyed by env id. Our
+``configs/<algo>.yaml`` files are in the zoo's format plus a few keys that only
+``snake-train`` knows (which vector env, evaluation and checkpoint frequency,
+torch threads); :func:`zoo_hyperparams` drops those, so the modules
+:mod:`train.zoo_ppo` and :mod:`train.zoo_sac` are zoo configs::
+
+    python -m rl_zoo3.train --algo ppo --env snake_env/Snake5-v1 --gym-packages snake_env -conf train.zoo_ppo
+    python -m rl_zoo3.enjoy --algo ppo --env snake_env/Snake5-v1 --gym-packages snake_env -f logs --no-render
+
+The zoo then trains with its own scripts (DummyVecEnv over single envs, its own
+logging, Optuna tuning with ``-optimize``) and saves in its own layout
+(``logs/<algo>/<env>_<k>/``), which ``rl_zoo3.enjoy`` replays.
+"""
+
+from __future__ import annotations
+
+from train import config as cfg
+
+# keys only snake-train understands (see train.config.META_DEFAULTS)
+PROJECT_ONLY_KEYS = ("vec_env", "eval_freq", "n_eval_episodes", "checkpoint_freq", "torch_threads")
+
+
+def _as_python(value) -> str:
+    """A config value as the Python text RL Zoo ``eval``s (activation names stay names)."""
+    if isinstance(value, dict):
+        return "dict(" + ", ".join(f"{k}={_as_python(v)}" for k, v in value.items()) + ")"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_as_python(v) for v in value) + "]"
+    if isinstance(value, str) and value in cfg.ACTIVATIONS:
+        return value
+    return repr(value)
+
+
+def zoo_env_wrapper(spec) -> list[dict]:
+    """Our ``env_wrapper`` (``{name: kwargs}``, see :mod:`snake_env.wrappers`) in the zoo's form: a list of
+    ``{"module.Class": kwargs}`` that ``rl_zoo3.utils.get_wrapper_class`` applies to each single env."""
+    from snake_env.wrappers import WRAPPERS, parse_env_wrapper
+
+    return [{f"{WRAPPERS[name][0].__module__}.{WRAPPERS[name][0].__name__}": kwargs}
+            for name, kwargs in parse_env_wrapper(spec)]
+
+
+def zoo_entry(entry: dict) -> dict:
+    """One env's hyperparameters in the zoo's form."""
+    entry = {k: v for k, v in entry.items() if k not in PROJECT_ONLY_KEYS}
+    if entry.get("env_wrapper") is not None:
+        entry["env_wrapper"] = zoo_env_wrapper(entry["env_wrapper"])
+    else:
+        entry.pop("env_wrapper", None)
+    if isinstance(entry.get("policy_kwargs"), dict):
+        entry["policy_kwargs"] = _as_python(entry["policy_kwargs"])
+    if isinstance(entry.get("normalize"), str):
+        entry["normalize"] = cfg.parse_python_dict(entry["normalize"], "normalize")
+    return entry
+
+
+def zoo_hyperparams(algo: str, path=None) -> dict:
+    """``{env_id: hyperparameters}`` of ``configs/<algo>.yaml`` (or ``path``) for RL Zoo."""
+    path = cfg.default_config_path(algo) if path is None else path
+    data = cfg.read_yaml(path)
+    return {env_id: zoo_entry(cfg.coerce_scalar(dict(entry))) for env_id, entry in data.items()
+            if isinstance(entry, dict)}

@@ -1,0 +1,5 @@
+"""RL Zoo config: ``-conf train.zoo_ppo`` (see :mod:`train.zoo`)."""
+
+from train.zoo import zoo_hyperparams
+
+hyperparams = zoo_hyperparams("ppo")
