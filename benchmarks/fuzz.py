@@ -121,7 +121,7 @@ def run_cell(kwargs: dict, num_envs: int = 256, steps: int = 100_000, seed: int 
             stepped = info["_sim_failure"]
             failed = info["sim_failure"] & stepped
             failures += int(failed.sum())
-            for code in env._aux[failed, physics.AUX_FAILED]:
+            for code in env._batch.aux[failed, physics.AUX_FAILED]:
                 name = physics.FAILURE_REASONS[int(code)]
                 reasons[name] = reasons.get(name, 0) + 1
             ok = stepped & ~failed
