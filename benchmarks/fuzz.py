@@ -185,7 +185,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
     for r in rows:
         if r["refused"]:
             continue
-        reasons = "; ".join(f"{k}: {v}" for k, v in sorted(r["failure_reasons"].items()))
+        reasons = "; ".join(f"{k}: {v}" for k, v in sorted(r["failure_reasons"].items())).replace("|", "\\|")
         lines.append(f"| {r['n_links']} | {r['max_torque']:g} | {r['length']:g} | {r['mass']:g} | "
                      f"{'yes' if r['paper_model'] else 'no'} | {r['sim_dt']:.2g} | {r['env_steps']:,} | "
                      f"{r['sim_failures']:,} | {r['leaked']} | {_fmt(r['residual_median'])} | "

@@ -16,7 +16,8 @@ def test_reduced_fuzz_leaks_nothing(paper_model):
     ran = [r for r in rows if not r["refused"]]
     assert len(ran) >= 3
     for r in ran:
-        assert r["env_steps"] >= 32 * 50
+        # each sim_failure costs one reset step (autoreset) that is not counted
+        assert r["env_steps"] + r["sim_failures"] >= 32 * 60
         assert r["leaked"] == 0, r
         assert r["residual_max"] is None or r["residual_max"] <= 1e-2 + 1e-9, r
 
