@@ -31,10 +31,28 @@ def test_zoo_hyperparams_cover_our_configs_without_project_keys(algo):
                                                  "env_kwargs"}
     for env_id, entry in zoo.items():
         assert not set(entry) & set(PROJECT_ONLY_KEYS), env_id
-        assert set(entry) <= allowed, (env_id, set(entry) - allowed)
+        assert set(entry) <= allowed | {"env_wrapper"}, (env_id, set(entry) - allowed)
+        if "env_wrapper" in entry:  # ours is {name: kwargs}; the zoo's a list of {"module.Class": kwargs}
+            assert entry["env_wrapper"] and all(len(item) == 1 for item in entry["env_wrapper"]), env_id
         if "policy_kwargs" in entry:
             assert isinstance(eval(entry["policy_kwargs"]), dict)
         assert entry["n_timesteps"] == cfg.coerce_scalar(ours[env_id])["n_timesteps"]
+
+
+def test_zoo_env_wrapper_builds_our_single_env_wrappers():
+    import gymnasium as gym
+
+    from snake_env.wrappers import JointTargetAction, PhaseObservation
+    from train.zoo import zoo_env_wrapper
+
+    spec = {"joint_target": {"kp": 1.0, "kd": 0.05}, "phase_observation": {"frequencies": [38.0]}}
+    assert zoo_env_wrapper(spec) == [{"snake_env.wrappers.JointTargetAction": {"kp": 1.0, "kd": 0.05}},
+                                     {"snake_env.wrappers.PhaseObservation": {"frequencies": [38.0]}}]
+    rl_zoo3_utils = pytest.importorskip("rl_zoo3.utils")
+    wrap = rl_zoo3_utils.get_wrapper_class({"env_wrapper": zoo_env_wrapper(spec)})
+    env = wrap(gym.make(newest_id("Snake5")))
+    assert isinstance(env, PhaseObservation) and isinstance(env.env, JointTargetAction)
+    assert env.observation_space.shape[0] == gym.make(newest_id("Snake5")).observation_space.shape[0] + 2
 
 
 def test_rl_zoo_train_and_enjoy(tmp_path):
