@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from agents.serpenoid import SerpenoidParams, joint_slices
+from snake_env.agents.serpenoid import SerpenoidParams, joint_slices
 
 TURN_GAIN = 9.0  # rad/s of yaw rate per rad of joint offset, measured on Snake5 with its searched gait
 

@@ -14,7 +14,7 @@ call per step for all sub-envs, instead of SB3's ``DummyVecEnv`` loop over
 
 Usage::
 
-    from agents.sb3_vec_env import SnakeSB3VecEnv
+    from snake_env.agents.sb3_vec_env import SnakeSB3VecEnv
     venv = SnakeSB3VecEnv("snake_env/Snake5-v1", num_envs=16, ctrl_cost_weight=1e-4)
     venv = VecMonitor(venv)          # episode returns/lengths in infos["episode"]
     venv = VecNormalize(venv)        # save its statistics with the model

@@ -1,6 +1,6 @@
 """Search of serpenoid-gait parameters per env id (CMA-ES from the ``cma`` package).
 
-Both gait families of :mod:`agents.serpenoid` are searched: uniform random
+Both gait families of :mod:`snake_env.agents.serpenoid` are searched: uniform random
 samples in a box, then a few generations of CMA-ES (Hansen's ``cma``,
 bounded to the box by its ``BoundTransform``) started from the best random
 gait, in box-normalized coordinates. A whole population is one batched
@@ -11,7 +11,7 @@ are re-scored on many full-length episodes and the best mean is written to ``con
 Score: mean forward speed of the snake's centre of mass, the mean of the
 env's ``info["x_velocity"]`` (m/s) over the episode, i.e. x displacement / time.
 
-    python -m agents.search --env snake_env/Snake5-v1
+    python -m snake_env.agents.search --env snake_env/Snake5-v1
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import yaml
 
 from snake_env.atomic import atomic_write_text
 
-from agents.serpenoid import FAMILIES, SerpenoidController, SerpenoidParams
+from snake_env.agents.serpenoid import FAMILIES, SerpenoidController, SerpenoidParams
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent.parent / "configs" / "serpenoid.yaml"
 
@@ -244,7 +244,7 @@ def load_params(env_id: str, path=DEFAULT_OUTPUT) -> tuple[SerpenoidParams, dict
     data = load_gaits(path)
     if env_id not in data:
         raise ValueError(f"no serpenoid gait for env {env_id!r} in {path}; available: {sorted(data)} "
-                         f"(run: python -m agents.search --env {env_id})")
+                         f"(run: python -m snake_env.agents.search --env {env_id})")
     entry = data[env_id]
     if not isinstance(entry, dict) or "params" not in entry:
         raise ValueError(f"entry {env_id!r} of {path} must be a mapping with 'params'")
@@ -262,14 +262,14 @@ def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAUL
                    "gaits_evaluated": result.evaluated, "seconds": round(result.seconds, 1),
                    **({"note": note} if note else {})},
     }
-    header = ("# Serpenoid gaits found by `python -m agents.search --env ID` (see agents/search.py).\n"
-              "# params: agents.serpenoid.SerpenoidParams; velocities in m/s (CM, along x).\n")
+    header = ("# Serpenoid gaits found by `python -m snake_env.agents.search --env ID` (see agents/search.py).\n"
+              "# params: snake_env.agents.serpenoid.SerpenoidParams; velocities in m/s (CM, along x).\n")
     text = header + yaml.safe_dump(dict(sorted(data.items())), sort_keys=False)
     atomic_write_text(path, text)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m agents.search", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m snake_env.agents.search", description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", dest="env_id", required=True, help="gymnasium env id, e.g. snake_env/Snake5-v1")
     parser.add_argument("--families", nargs="+", default=list(FAMILIES), help=f"subset of {list(FAMILIES)}")
     parser.add_argument("--population", type=int, default=192)
@@ -292,7 +292,7 @@ def main(argv=None) -> int:
     if not args.dry_run:
         import cma
 
-        note = (f"cma {cma.__version__} CMA-ES after random search: `python -m agents.search --env {args.env_id} "
+        note = (f"cma {cma.__version__} CMA-ES after random search: `python -m snake_env.agents.search --env {args.env_id} "
                 f"--families {' '.join(args.families)} --population {args.population} --generations {args.generations} "
                 f"--search-steps {args.search_steps} --repeats {args.repeats} --final-episodes {args.final_episodes} "
                 f"--seed {args.seed}`")

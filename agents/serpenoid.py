@@ -1,7 +1,7 @@
 """Serpenoid-gait controllers: the hand-designed baseline a learned policy must beat.
 
 Two families, both batched over a leading axis (one parameter set per env of
-a vector env, which is how :mod:`agents.search` evaluates a population):
+a vector env, which is how :mod:`snake_env.agents.search` evaluates a population):
 
 * ``pd``: the serpenoid curve (Hirose) as joint references,
   phi_i(t) = alpha sin(omega t + (i-1) beta) + gamma  (rad),  i = 1..n-1,

@@ -25,7 +25,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 
-from benchmarks import bench_report, bench_sections
+from snake_env.benchmarks import bench_report, bench_sections
 
 SECTIONS = ("single", "vector", "udot", "ppo", "memory", "startup")
 

@@ -214,7 +214,7 @@ def ppo_speeds(snake_links: int, snake_num_envs: int, iterations: int, rounds: i
     import gymnasium as gym
     import torch
 
-    from agents.sb3_vec_env import SnakeSB3VecEnv
+    from snake_env.agents.sb3_vec_env import SnakeSB3VecEnv
 
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(torch_threads)

@@ -1,6 +1,6 @@
 """Reliability fuzz of the batched env: does any non-finite or non-physical value reach the agent?
 
-    python -m benchmarks.fuzz [--steps-per-cell N] [--num-envs B] [--quick]
+    python -m snake_env.benchmarks.fuzz [--steps-per-cell N] [--num-envs B] [--quick]
                               [--json PATH] [--markdown PATH] [--only TEXT]
 
 The matrix of issue 10: n in {2, 3, 5, 12, 30, 100}, max_torque in {0.1, 1, 10,
@@ -202,7 +202,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.fuzz", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m snake_env.benchmarks.fuzz", description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps-per-cell", type=int, default=1_000_000, help="env-steps per setting (default 1e6)")
     parser.add_argument("--num-envs", type=int, default=256, help="sub-envs of the vector env (default 256)")
     parser.add_argument("--quick", action="store_true", help="a few cells, 64 envs x 20 steps: checks that it runs")
@@ -229,7 +229,7 @@ def main(argv=None) -> int:
     if args.from_json:
         with open(args.from_json) as f:
             rows = json.load(f)
-        meta = {"command": f"python -m benchmarks.fuzz --steps-per-cell {args.steps_per_cell} --num-envs "
+        meta = {"command": f"python -m snake_env.benchmarks.fuzz --steps-per-cell {args.steps_per_cell} --num-envs "
                            f"{args.num_envs} --json {args.from_json}",
                 "steps_per_cell": args.steps_per_cell, "num_envs": args.num_envs, "wall_s": args.wall_s,
                 "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load": "shared machine",
@@ -254,7 +254,7 @@ def main(argv=None) -> int:
         print(f"[{i + 1}/{len(cells)}] {kwargs}: {status}", flush=True)
         if args.json:  # rewritten after every cell, so a long run can be stopped and still reported
             write_text(args.json, json.dumps(rows, indent=1))
-    meta = {"command": "python -m benchmarks.fuzz " + " ".join(sys.argv[1:] if argv is None else argv),
+    meta = {"command": "python -m snake_env.benchmarks.fuzz " + " ".join(sys.argv[1:] if argv is None else argv),
             "steps_per_cell": steps, "num_envs": num_envs, "wall_s": time.perf_counter() - start,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores",
             "load": "load average at the end %.1f (shared machine)" % os.getloadavg()[0], "notes": args.note}

@@ -1,6 +1,6 @@
 """How much per-step action noise a searched serpenoid gait survives (docs/learning.md, note 4).
 
-    python -m benchmarks.serpenoid_noise --env snake_env/Snake12-v1
+    python -m snake_env.benchmarks.serpenoid_noise --env snake_env/Snake12-v1
 
 Rows: the saved gait of configs/serpenoid.yaml as env torques (its own PD),
 plus Gaussian noise of std sigma (units of max_torque) on every action; and
@@ -24,8 +24,8 @@ def speeds(env_id: str, sigmas, envs: int, steps: int, seed: int, kp: float, kd:
     import gymnasium as gym
 
     import snake_env  # noqa: F401
-    from agents.search import env_geometry, load_params
-    from agents.serpenoid import SerpenoidController
+    from snake_env.agents.search import env_geometry, load_params
+    from snake_env.agents.serpenoid import SerpenoidController
     from snake_env.wrappers import wrap_vector_env
 
     params, env_kwargs = load_params(env_id)
@@ -63,7 +63,7 @@ def speeds(env_id: str, sigmas, envs: int, steps: int, seed: int, kp: float, kd:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.serpenoid_noise", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m snake_env.benchmarks.serpenoid_noise", description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", dest="env_id", default="snake_env/Snake12-v1")
     parser.add_argument("--sigmas", type=float, nargs="+", default=[0.0, 0.05, 0.135, 0.37, 1.0])
     parser.add_argument("--envs", type=int, default=8)

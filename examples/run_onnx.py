@@ -19,8 +19,8 @@ import numpy as np
 import onnxruntime as ort
 
 import snake_env  # noqa: F401  (registers the snake ids)
-from agents.onnx_policy import OnnxPolicy, OnnxPolicyError
-from train.evaluate import print_table, run_episodes, summarize
+from snake_env.agents.onnx_policy import OnnxPolicy, OnnxPolicyError
+from snake_env.train.evaluate import print_table, run_episodes, summarize
 
 
 def main(argv=None) -> int:

@@ -9,8 +9,8 @@ import pytest
 from gymnasium.envs.registration import find_highest_version, registry
 
 import snake_env  # noqa: F401  (registers the ids)
-from agents.search import load_gaits
-from train.config import build_config, read_yaml, default_config_path
+from snake_env.agents.search import load_gaits
+from snake_env.train.config import build_config, read_yaml, default_config_path
 
 # locomotion names: "Snake" (n_links kwarg) and "Snake<n>"; task ids (SnakeReach<n>, ...) have their own configs
 LOCOMOTION_NAME = re.compile(r"^Snake\d*$")
@@ -38,6 +38,6 @@ def test_every_locomotion_id_has_a_valid_training_entry(algo):
 def test_every_locomotion_id_has_a_searched_serpenoid():
     gaits = load_gaits()
     missing = [env_id for env_id in newest_locomotion_ids() if env_id not in gaits]
-    assert not missing, f"configs/serpenoid.yaml has no gait for {missing} (run: python -m agents.search --env ID)"
+    assert not missing, f"configs/serpenoid.yaml has no gait for {missing} (run: python -m snake_env.agents.search --env ID)"
     for env_id in newest_locomotion_ids():
         assert gaits[env_id]["search"]["mean_forward_velocity"] > 0.0, env_id

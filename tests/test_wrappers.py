@@ -10,8 +10,8 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 import snake_env  # noqa: F401
-from agents.search import load_params
-from agents.serpenoid import SerpenoidController
+from snake_env.agents.search import load_params
+from snake_env.agents.serpenoid import SerpenoidController
 from snake_env.wrappers import (JointTargetAction, JointTargetActionVector, PhaseObservation, PhaseObservationVector,
                                 parse_env_wrapper, wrap_env, wrap_vector_env)
 
@@ -148,7 +148,7 @@ def test_spec_forms():
 
 
 def test_train_config_rejects_a_bad_wrapper_name_in_one_line():
-    from train.config import ConfigError, build_config
+    from snake_env.train.config import ConfigError, build_config
 
     with pytest.raises(ConfigError) as info:
         build_config("ppo", "snake_env/Snake12-v1", overrides=["env_wrapper={joint_targte: {kp: 1.0}}"])

@@ -1,7 +1,7 @@
-"""``python -m train``: the same as ``snake-train``."""
+"""``python -m snake_env.train``: the same as ``snake-train``."""
 
 import sys
 
-from train.train import main
+from snake_env.train.train import main
 
 sys.exit(main())

@@ -14,7 +14,7 @@ from pathlib import Path
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
-from train import atomic
+from snake_env.train import atomic
 
 CHECKPOINT_RE = re.compile(r"^model_(\d+)_steps\.zip$")
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import yaml
 
-from train.atomic import atomic_write_text
+from snake_env.train.atomic import atomic_write_text
 
 ALGOS = ("ppo", "sac")
 

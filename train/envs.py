@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
 
-from train.config import ConfigError, normalize_options
+from snake_env.train.config import ConfigError, normalize_options
 
 
 def make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
@@ -38,7 +38,7 @@ def _make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
     env_kwargs = dict(config["env_kwargs"])
     env_wrapper = config.get("env_wrapper")
     if config["vec_env"] == "batched":
-        from agents.sb3_vec_env import SnakeSB3VecEnv
+        from snake_env.agents.sb3_vec_env import SnakeSB3VecEnv
 
         if env_wrapper:
             # SB3 resets finished envs in the same step; the wrappers sit between it and the batched env

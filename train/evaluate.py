@@ -16,7 +16,7 @@ updated. Rendering uses ``rgb_array`` only, so no display is needed.
 Metrics per episode: return, mean forward velocity (mean of
 ``info["x_velocity"]``, m/s, whole-snake CM), final distance from the
 origin (m), x displacement (m), length (steps), and the task metrics of
-:mod:`train.task_metrics` (cost of transport for every task; success, goal
+:mod:`snake_env.train.task_metrics` (cost of transport for every task; success, goal
 distance, cross-track or tracking errors by task).
 """
 
@@ -90,7 +90,7 @@ def make_env(env_id: str, env_kwargs: dict, render: bool, env_wrapper=None):
 
 def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None):
     """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths)."""
-    from train.task_metrics import EpisodeRecorder
+    from snake_env.train.task_metrics import EpisodeRecorder
 
     base = env.unwrapped
     results, paths = [], []
@@ -175,7 +175,7 @@ class VideoWriter:
     def __enter__(self):
         import imageio.v2 as imageio
 
-        from train.atomic import atomic_path
+        from snake_env.train.atomic import atomic_path
 
         self._atomic = atomic_path(self.path, suffix=self.path.suffix)
         tmp = self._atomic.__enter__()
@@ -291,8 +291,8 @@ def check_outputs(args) -> None:
 
 def policy_actor(args):
     """(env_id, env_kwargs, act(obs), reset(), description) of a saved policy."""
-    from agents.policy_loading import PolicyLoadError, load_policy, locate
-    from train.config import ConfigError, load_run_config
+    from snake_env.agents.policy_loading import PolicyLoadError, load_policy, locate
+    from snake_env.train.config import ConfigError, load_run_config
 
     try:
         files = locate(args.target)
@@ -331,8 +331,8 @@ def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
     the searched gait of the locomotion id ``snake_env/Snake{n}-v*`` with the same n (newest version)."""
     import re
 
-    from agents.search import env_geometry, load_gaits
-    from agents.serpenoid import SerpenoidParams
+    from snake_env.agents.search import env_geometry, load_gaits
+    from snake_env.agents.serpenoid import SerpenoidParams
 
     n_links, max_torque, dt, include_position = env_geometry(env_id, dict(env_kwargs or {}))
     gaits = load_gaits(path)
@@ -340,7 +340,7 @@ def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
     matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
     if not matches:
         raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (needed by the baseline on {env_id}; "
-                         f"run: python -m agents.search --env snake_env/Snake{n_links}-v1)")
+                         f"run: python -m snake_env.agents.search --env snake_env/Snake{n_links}-v1)")
     entry = gaits[matches[-1][1]]
     speed = (entry.get("search") or {}).get("mean_forward_velocity")
     return (SerpenoidParams.from_dict(entry["params"]), speed, n_links, max_torque, dt, include_position)
@@ -348,7 +348,7 @@ def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
 
 def onnx_actor(args):
     """(env_id, env_kwargs, act(obs), reset(), description, meta) of an exported ONNX policy."""
-    from agents.onnx_policy import OnnxPolicy, OnnxPolicyError
+    from snake_env.agents.onnx_policy import OnnxPolicy, OnnxPolicyError
 
     try:
         policy = OnnxPolicy(args.onnx)
@@ -369,9 +369,9 @@ def onnx_actor(args):
 
 
 def serpenoid_actor(args):
-    from agents.search import env_geometry, load_params
-    from agents.serpenoid import SerpenoidController
-    from train.config import config_path
+    from snake_env.agents.search import env_geometry, load_params
+    from snake_env.agents.serpenoid import SerpenoidController
+    from snake_env.train.config import config_path
 
     path = args.serpenoid_config or config_path("serpenoid.yaml")
     task = _task_of(args.env_id)
@@ -406,7 +406,7 @@ def _task_of(env_id: str) -> str:
 
 def steered_actor(args, path):
     """Liljebäck's line-of-sight path following (``los``) or the command-steered serpenoid (``steering``)."""
-    from agents.path_following import LineOfSightController, SteeringController
+    from snake_env.agents.path_following import LineOfSightController, SteeringController
 
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     try:
@@ -495,7 +495,7 @@ def evaluate(args) -> dict:
         results, paths = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps)
     finally:
         env.close()
-    from train.task_metrics import summarize_task
+    from snake_env.train.task_metrics import summarize_task
 
     summary = summarize(results)
     task = _task_of(env_id)
@@ -506,12 +506,12 @@ def evaluate(args) -> dict:
               "seed": args.seed, "n_episodes": args.episodes, **summary, "task": task, **task_summary,
               "episodes": results}
     if args.json_path:
-        from train.atomic import atomic_write_text
+        from snake_env.train.atomic import atomic_write_text
 
         atomic_write_text(Path(args.json_path), json.dumps(report, indent=2, allow_nan=False) + "\n")
         print(f"metrics written to {args.json_path}")
     if args.plot:
-        from train.plots import plot_trajectories
+        from snake_env.train.plots import plot_trajectories
 
         plot_trajectories(paths, Path(args.plot), f"CM trajectories: {meta['algo']} on {env_id}")
         print(f"trajectories plotted to {args.plot}")

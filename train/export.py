@@ -4,10 +4,10 @@ Examples::
 
     snake-export runs/snake5_ppo --out policy.onnx
     snake-export runs/snake5_ppo/checkpoints/model_200000_steps.zip --out policy.onnx
-    python -m train.export runs/snake5_sac --out sac.onnx
+    python -m snake_env.train.export runs/snake5_sac --out sac.onnx
 
 The graph reproduces ``model.predict(normalize(obs), deterministic=True)`` of
-the evaluation path (:mod:`agents.policy_loading`), so it runs where neither
+the evaluation path (:mod:`snake_env.agents.policy_loading`), so it runs where neither
 PyTorch nor Stable-Baselines3 is installed (onnxruntime alone):
 
 1. VecNormalize observation normalization with the run's statistics, folded in
@@ -78,8 +78,8 @@ def load_for_export(target, env_id=None):
     import gymnasium as gym
 
     import snake_env  # noqa: F401  (registers the ids)
-    from agents.policy_loading import PolicyLoadError, detect_algo, load_policy, locate
-    from train.config import ConfigError, load_run_config
+    from snake_env.agents.policy_loading import PolicyLoadError, detect_algo, load_policy, locate
+    from snake_env.train.config import ConfigError, load_run_config
 
     try:
         files = locate(target)

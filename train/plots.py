@@ -11,7 +11,7 @@ import matplotlib.ticker
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from train.atomic import atomic_path  # noqa: E402
+from snake_env.train.atomic import atomic_path  # noqa: E402
 
 STEP_KEY = "time/total_timesteps"
 CURVES = (("rollout/ep_rew_mean", "training episodes (mean return)"),

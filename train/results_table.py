@@ -1,6 +1,6 @@
 """Evaluate a campaign of runs against the serpenoid baseline; print a markdown table.
 
-    python -m train.results_table runs/results --episodes 10 --images docs/images
+    python -m snake_env.train.results_table runs/results --episodes 10 --images docs/images
 
 Expects run directories ``<root>/<Env>__<algo>__s<seed>/`` made by snake-train.
 Each final model is evaluated with snake-eval (deterministic; and stochastic
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from train.evaluate import main as evaluate_main
+from snake_env.train.evaluate import main as evaluate_main
 
 RUN_RE = re.compile(r"^(?P<env>[^_]+)__(?P<algo>ppo|sac)__s(?P<seed>\d+)$")
 SIZE_RE = re.compile(r"^Snake(?P<n>\d+)-v\d+$")
@@ -48,7 +48,7 @@ def wall_seconds(run_dir: Path) -> float:
 
 
 def timesteps(run_dir: Path) -> int:
-    from agents.policy_loading import CHECKPOINT_RE
+    from snake_env.agents.policy_loading import CHECKPOINT_RE
 
     steps = [int(m.group(1)) for p in (run_dir / "checkpoints").glob("*.zip") if (m := CHECKPOINT_RE.match(p.name))]
     return max(steps, default=0)
@@ -67,8 +67,8 @@ def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=No
     """speed_vs_n.png from the runs, the serpenoid of every SnakeN id and the earlier CSV."""
     import csv
 
-    from agents.search import load_gaits
-    from train.plots import plot_speed_vs_n
+    from snake_env.agents.search import load_gaits
+    from snake_env.train.plots import plot_speed_vs_n
 
     serpenoid = {}
     for env_id in load_gaits():
@@ -93,7 +93,7 @@ def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=No
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m train.results_table", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m snake_env.train.results_table", description=__doc__.split("\n\n")[0])
     parser.add_argument("root", help="directory holding the run directories")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--extra-episodes", type=int, default=5, help="episodes for the stochastic/best columns")
@@ -129,7 +129,7 @@ def main(argv=None) -> int:
                                          ["--baseline", "serpenoid", "--env", f"snake_env/{env}",
                                           "--episodes", str(args.episodes)])
     if args.images:
-        from train.plots import plot_campaign
+        from snake_env.train.plots import plot_campaign
 
         groups = {key: [root / f"{key[0]}__{key[1]}__s{r['seed']}" / "eval" / "evaluations.npz" for r in items]
                   for key, items in runs.items()}

@@ -21,7 +21,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from train import config as cfg
+from snake_env.train import config as cfg
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -120,7 +120,7 @@ def install_interrupt_handlers() -> None:
 
 def progress_mode(requested: str) -> str:
     """``auto``: SB3's redrawn bar on a terminal, plain log lines otherwise."""
-    from train.progress import stdout_is_terminal
+    from snake_env.train.progress import stdout_is_terminal
 
     if requested == "auto":
         return "bar" if stdout_is_terminal() else "lines"
@@ -150,10 +150,10 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar=True, verbose:
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from train import callbacks as cb
-    from train.atomic import atomic_path
-    from train.envs import make_vec_env, wrap_normalize
-    from train.plots import plot_learning_curve
+    from snake_env.train import callbacks as cb
+    from snake_env.train.atomic import atomic_path
+    from snake_env.train.envs import make_vec_env, wrap_normalize
+    from snake_env.train.plots import plot_learning_curve
 
     install_interrupt_handlers()
     torch.set_num_threads(config["torch_threads"])
@@ -203,7 +203,7 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar=True, verbose:
     ])
     mode = progress_mode({True: "auto", False: "none"}.get(progress_bar, progress_bar))
     if mode == "lines":
-        from train.progress import LogProgress
+        from snake_env.train.progress import LogProgress
 
         callbacks.callbacks.append(LogProgress(config["n_timesteps"]))  # initialized by learn() with the others
     remaining = config["n_timesteps"] - model.num_timesteps

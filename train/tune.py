@@ -8,9 +8,9 @@ Examples::
         --storage postgresql+psycopg://snake@dbhost:5432/optuna
 
 A trial is one snake-train run with sampled hyperparameters
-(:mod:`train.tune_space`), evaluated ``--n-evaluations`` times on the
+(:mod:`snake_env.train.tune_space`), evaluated ``--n-evaluations`` times on the
 deterministic policy's mean forward speed and reported to Optuna, whose pruner
-may stop it early (:mod:`train.tune_objective`). The study lives in an
+may stop it early (:mod:`snake_env.train.tune_objective`). The study lives in an
 SQLAlchemy storage: by default ``DIR/study.db`` (SQLite, embedded), or any URL
 Optuna's RDBStorage accepts; re-running a command resumes its study.
 Heartbeats let the next worker to start fail the running trials of a killed one.
@@ -18,7 +18,7 @@ Heartbeats let the next worker to start fail the running trials of a killed one.
 
 Writes ``DIR/best_config.yaml`` (configs/<algo>.yaml format, for
 ``snake-train --config``), ``DIR/study.csv`` and the optimization-history and
-parameter-importance PNGs (:mod:`train.tune_report`).
+parameter-importance PNGs (:mod:`snake_env.train.tune_report`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import time
 import warnings
 from pathlib import Path
 
-from train import config as cfg
+from snake_env.train import config as cfg
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
@@ -356,9 +356,9 @@ def with_fail_reason(objective):
 def run(args, base: dict, out: Path, url: str) -> int:
     import optuna
 
-    from train import tune_report, tune_space
-    from train.tune_objective import Objective
-    from train.train import install_interrupt_handlers
+    from snake_env.train import tune_report, tune_space
+    from snake_env.train.tune_objective import Objective
+    from snake_env.train.train import install_interrupt_handlers
 
     optuna.logging.set_verbosity(optuna.logging.INFO if args.verbose else optuna.logging.ERROR)
     # heartbeats and matplotlib plots are marked experimental in Optuna; they are used as documented

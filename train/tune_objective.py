@@ -1,8 +1,8 @@
 """One ``snake-tune`` trial: a ``snake-train`` run with sampled hyperparameters.
 
 The trial builds its config, envs and model with snake-train's own functions
-(:mod:`train.config`, :func:`train.envs.make_vec_env`,
-:func:`train.envs.wrap_normalize`, :func:`train.train.build_model`) and trains
+(:mod:`snake_env.train.config`, :func:`snake_env.train.envs.make_vec_env`,
+:func:`snake_env.train.envs.wrap_normalize`, :func:`snake_env.train.train.build_model`) and trains
 with SB3's ``learn``. :class:`TrialEvalCallback` (RL Zoo's pattern) evaluates
 the deterministic policy E times, reports its mean forward speed to Optuna and
 raises :class:`optuna.TrialPruned` when the pruner says so.
@@ -19,8 +19,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import sync_envs_normalization
 
-from train import config as cfg
-from train import tune_space
+from snake_env.train import config as cfg
+from snake_env.train import tune_space
 
 
 def mean_forward_speed(model, eval_env, n_episodes: int) -> float:
@@ -109,8 +109,8 @@ class Objective:
     def __call__(self, trial) -> float:
         import torch
 
-        from train.envs import make_vec_env, wrap_normalize
-        from train.train import build_model
+        from snake_env.train.envs import make_vec_env, wrap_normalize
+        from snake_env.train.train import build_model
 
         config = self.trial_config(trial)
         trial.set_user_attr("config", best_config_entry(config))
@@ -142,7 +142,7 @@ def best_config_entry(config: dict) -> dict:
 
 def zoo_string(value) -> str:
     """``{"net_arch": [64], "activation_fn": "nn.Tanh"}`` -> ``"dict(net_arch=[64], activation_fn=nn.Tanh)"``,
-    the form ``configs/*.yaml`` use and :func:`train.config.parse_python_dict` reads."""
+    the form ``configs/*.yaml`` use and :func:`snake_env.train.config.parse_python_dict` reads."""
     if isinstance(value, dict):
         if all(isinstance(k, str) and k.isidentifier() for k in value):
             return "dict(" + ", ".join(f"{k}={zoo_string(v)}" for k, v in value.items()) + ")"

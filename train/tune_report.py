@@ -13,7 +13,7 @@ from pathlib import Path
 import yaml
 from optuna.trial import TrialState
 
-from train.atomic import atomic_path, atomic_write_text
+from snake_env.train.atomic import atomic_path, atomic_write_text
 
 
 def completed(study) -> list:

@@ -5,9 +5,9 @@ file or a Python module with a ``hyperparams`` dict keyed by env id. Our
 ``configs/<algo>.yaml`` files are in the zoo's format plus a few keys that only
 ``snake-train`` knows (which vector env, evaluation and checkpoint frequency,
 torch threads); :func:`zoo_hyperparams` drops those, so the modules
-:mod:`train.zoo_ppo` and :mod:`train.zoo_sac` are zoo configs::
+:mod:`snake_env.train.zoo_ppo` and :mod:`snake_env.train.zoo_sac` are zoo configs::
 
-    python -m rl_zoo3.train --algo ppo --env snake_env/Snake5-v1 --gym-packages snake_env -conf train.zoo_ppo
+    python -m rl_zoo3.train --algo ppo --env snake_env/Snake5-v1 --gym-packages snake_env -conf snake_env.train.zoo_ppo
     python -m rl_zoo3.enjoy --algo ppo --env snake_env/Snake5-v1 --gym-packages snake_env -f logs --no-render
 
 The zoo then trains with its own scripts (DummyVecEnv over single envs, its own
@@ -17,9 +17,9 @@ logging, Optuna tuning with ``-optimize``) and saves in its own layout
 
 from __future__ import annotations
 
-from train import config as cfg
+from snake_env.train import config as cfg
 
-# keys only snake-train understands (see train.config.META_DEFAULTS)
+# keys only snake-train understands (see snake_env.train.config.META_DEFAULTS)
 PROJECT_ONLY_KEYS = ("vec_env", "eval_freq", "n_eval_episodes", "checkpoint_freq", "torch_threads")
 
 

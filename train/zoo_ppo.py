@@ -1,5 +1,5 @@
-"""RL Zoo config: ``-conf train.zoo_ppo`` (see :mod:`train.zoo`)."""
+"""RL Zoo config: ``-conf snake_env.train.zoo_ppo`` (see :mod:`snake_env.train.zoo`)."""
 
-from train.zoo import zoo_hyperparams
+from snake_env.train.zoo import zoo_hyperparams
 
 hyperparams = zoo_hyperparams("ppo")

@@ -25,7 +25,7 @@ e_j = (cos theta_j, sin theta_j), e_j_perp = (-sin theta_j, cos theta_j).
 
 Every function here is written with plain numpy arithmetic (no einsum, no
 LAPACK) so that it also runs on numpy object arrays of a counting scalar type
-(:mod:`benchmarks.opcount`): the operation counts reported for Table I are
+(:mod:`snake_env.benchmarks.opcount`): the operation counts reported for Table I are
 those of this very code.
 """
 

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import snake_env  # noqa: F401
-from agents.path_following import LineOfSightController, SteeringController, mean_link_angle
-from agents.search import load_params
-from agents.serpenoid import SerpenoidController, SerpenoidParams
+from snake_env.agents.path_following import LineOfSightController, SteeringController, mean_link_angle
+from snake_env.agents.search import load_params
+from snake_env.agents.serpenoid import SerpenoidController, SerpenoidParams
 
 GAIT, _ = load_params("snake_env/Snake5-v1")
 

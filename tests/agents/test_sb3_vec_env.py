@@ -9,7 +9,7 @@ import pytest
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecEnv, VecMonitor, VecNormalize
 
-from agents.sb3_vec_env import SnakeSB3VecEnv
+from snake_env.agents.sb3_vec_env import SnakeSB3VecEnv
 from snake_env.envs import SnakeVectorEnv
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import snake_env  # noqa: F401
-from agents import search
-from agents.serpenoid import SerpenoidController, SerpenoidParams, joint_slices, reference
+from snake_env.agents import search
+from snake_env.agents.serpenoid import SerpenoidController, SerpenoidParams, joint_slices, reference
 
 ENV = "snake_env/Snake3-v1"
 

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from benchmarks import bench, bench_report
+from snake_env.benchmarks import bench, bench_report
 
 SNAKE_IDS = ["snake_env/Snake3-v1", "snake_env/Snake5-v1", "snake_env/Snake30-v1"]
 
@@ -151,7 +151,7 @@ def test_note_is_kept_in_json_and_page(quick_run, tmp_path):
 
 
 def test_without_mujoco_swimmer_is_reported_not_measured(monkeypatch):
-    from benchmarks import bench_sections
+    from snake_env.benchmarks import bench_sections
 
     monkeypatch.setattr(bench_sections, "mujoco_available", lambda: (False, "ModuleNotFoundError: No module named 'mujoco'"))
     results = bench.run_sections(bench.QUICK, ["single"], log=lambda *a, **k: None)

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from benchmarks import fuzz
+from snake_env.benchmarks import fuzz
 
 
 @pytest.mark.parametrize("paper_model", [False, True])

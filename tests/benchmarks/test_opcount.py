@@ -5,9 +5,9 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from benchmarks import opcount
-from benchmarks.opcount import Counted, counted_array, counting, fit_polynomial, values_of
-from benchmarks.paper_table1 import PAPER_TABLE, PAPER_TOTALS, paper_inconsistencies, poly
+from snake_env.benchmarks import opcount
+from snake_env.benchmarks.opcount import Counted, counted_array, counting, fit_polynomial, values_of
+from snake_env.benchmarks.paper_table1 import PAPER_TABLE, PAPER_TOTALS, paper_inconsistencies, poly
 from snake_env.dynamics import SnakeModel
 
 

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from benchmarks import reproduce
+from snake_env.benchmarks import reproduce
 from snake_env.atomic import _file_mode
 
 
@@ -58,6 +58,6 @@ def test_cli_entry_point_rejects_bad_arguments(tmp_path):
 
 
 def test_module_runs_as_a_script_help():
-    proc = subprocess.run([sys.executable, "-m", "benchmarks.reproduce", "--help"], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "snake_env.benchmarks.reproduce", "--help"], capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 0 and "--quick" in proc.stdout

@@ -23,7 +23,7 @@ def train_args(algo: str, run_dir, steps: int, *extra) -> list[str]:
 @pytest.fixture(scope="session")
 def ppo_run(tmp_path_factory):
     """A finished tiny PPO run directory (normalized observations and rewards)."""
-    from train.train import main
+    from snake_env.train.train import main
 
     run_dir = tmp_path_factory.mktemp("runs") / "ppo_run"
     assert main(train_args("ppo", run_dir, 256)) == 0

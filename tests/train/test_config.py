@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from train import config as cfg
+from snake_env.train import config as cfg
 
 ENV = "snake_env/Snake3-v1"
 

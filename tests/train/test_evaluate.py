@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from train.evaluate import main
+from snake_env.train.evaluate import main
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = "snake_env/Snake3-v1"
@@ -68,7 +68,7 @@ def test_matches_sb3_vecnormalize_evaluation_and_does_not_update_statistics(ppo_
     assert ours["episodes"][0]["return"] == pytest.approx(total, rel=1e-6, abs=1e-9)
     np.testing.assert_array_equal(venv.obs_rms.mean, mean_before)
     # and the statistics matter: without them the same policy acts differently
-    from agents.policy_loading import load_policy
+    from snake_env.agents.policy_loading import load_policy
 
     env = gym.make(ENV)
     loaded = load_policy(ppo_run, env.observation_space, env.action_space, {"algo": "ppo"})
@@ -85,7 +85,7 @@ def test_plot_and_gif_are_written_headless(ppo_run, tmp_path):
 
 
 def test_serpenoid_baseline_matches_the_search_score(tmp_path):
-    from agents.search import load_params, rollout_speeds
+    from snake_env.agents.search import load_params, rollout_speeds
 
     report = evaluate_json(tmp_path, "--baseline", "serpenoid", "--env", ENV, "--episodes", "1", "--seed", "4",
                            "--max-steps", "120")
@@ -140,7 +140,7 @@ def test_bad_model_files_are_one_line_errors(ppo_run, tmp_path, capsys):
 def test_cli_process_exits_nonzero_without_traceback(tmp_path):
     garbage = tmp_path / "model.zip"
     garbage.write_bytes(b"PK\x03\x04 corrupt")
-    result = subprocess.run([sys.executable, "-m", "train.evaluate", str(garbage), "--env", ENV], cwd=REPO,
+    result = subprocess.run([sys.executable, "-m", "snake_env.train.evaluate", str(garbage), "--env", ENV], cwd=REPO,
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
     assert "Traceback" not in result.stderr

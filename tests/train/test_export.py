@@ -20,9 +20,9 @@ from tests.train.conftest import ENV, train_args
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-from agents.policy_loading import load_policy  # noqa: E402
-from train.export import main as export_main  # noqa: E402
-from train.export import read_metadata  # noqa: E402
+from snake_env.agents.policy_loading import load_policy  # noqa: E402
+from snake_env.train.export import main as export_main  # noqa: E402
+from snake_env.train.export import read_metadata  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 N_OBS = 1000
@@ -31,7 +31,7 @@ N_OBS = 1000
 @pytest.fixture(scope="module")
 def runs(ppo_run, tmp_path_factory):
     """Tiny runs: PPO normalized (the shared fixture), PPO plain, SAC normalized, SAC plain."""
-    from train.train import main
+    from snake_env.train.train import main
 
     root = tmp_path_factory.mktemp("export_runs")
     made = {("ppo", True): ppo_run}
@@ -111,7 +111,7 @@ runpy.run_path(sys.argv[0], run_name="__main__")
 
 
 def eval_json(path: Path, *argv) -> dict:
-    from train.evaluate import main as eval_main
+    from snake_env.train.evaluate import main as eval_main
 
     assert eval_main([*map(str, argv), "--json", str(path)]) == 0
     return json.loads(path.read_text())
@@ -145,7 +145,7 @@ def test_onnx_runner_without_torch_matches_snake_eval(runs, tmp_path):
 
 def run_cli(*argv):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, "-m", "train.export", *map(str, argv)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "snake_env.train.export", *map(str, argv)], capture_output=True, text=True,
                           env=env, timeout=300)
 
 
@@ -188,7 +188,7 @@ def test_export_errors_are_one_line(runs, tmp_path):
 
 
 def test_snake_eval_onnx_errors(tmp_path):
-    from train.evaluate import main as eval_main
+    from snake_env.train.evaluate import main as eval_main
 
     garbage = tmp_path / "garbage.onnx"
     garbage.write_bytes(b"not a model")
@@ -200,7 +200,7 @@ def test_snake_eval_onnx_errors(tmp_path):
         with pytest.raises(SystemExit) as exit_info:
             eval_main(argv)
         assert exit_info.value.code == 2
-    proc = subprocess.run([sys.executable, "-m", "train.evaluate", "--onnx", str(garbage)], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "snake_env.train.evaluate", "--onnx", str(garbage)], capture_output=True,
                           text=True, timeout=300,
                           env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])})
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "not a readable ONNX model" in proc.stderr

@@ -10,9 +10,9 @@ import pytest
 import yaml
 
 from tests.test_configs import newest_locomotion_ids
-from train.config import build_config
-from train.evaluate import main as evaluate_main
-from train.train import main as train_main
+from snake_env.train.config import build_config
+from snake_env.train.evaluate import main as evaluate_main
+from snake_env.train.train import main as train_main
 
 
 def long_snake_id() -> str:

@@ -8,7 +8,7 @@ import re
 import pytest
 
 from tests.train.conftest import train_args
-from train.progress import LogProgress, format_duration
+from snake_env.train.progress import LogProgress, format_duration
 
 LINE = re.compile(r"^\[ *(\d+)%\] (\d+)/(\d+) steps \| (\d+) fps \| ep return (\S+) \| speed (\S+)( m/s)? \| "
                   r"elapsed \S+ \| ETA \S+$")
@@ -23,7 +23,7 @@ def test_format_duration():
 
 def test_lines_every_ten_percent_with_metrics(tmp_path, capsys):
     """A non-terminal stdout gets a line per 10 % with steps, fps, return, speed and ETA; then the hint."""
-    from train.train import main
+    from snake_env.train.train import main
 
     run_dir = tmp_path / "run"
     assert main([a for a in train_args("ppo", run_dir, 640) if a != "--no-progress-bar"] + ["--progress", "auto"]) == 0

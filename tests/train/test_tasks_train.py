@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from train.evaluate import main as eval_main
-from train.task_metrics import EpisodeRecorder, summarize_task
-from train.train import main as train_main
+from snake_env.train.evaluate import main as eval_main
+from snake_env.train.task_metrics import EpisodeRecorder, summarize_task
+from snake_env.train.train import main as train_main
 
 TINY = ["--n-envs", "2", "--set", "env_kwargs.max_episode_steps=50", "--set", "eval_freq=200",
         "--set", "checkpoint_freq=200", "--set", "n_eval_episodes=1", "--set", "policy_kwargs.net_arch=[8]",

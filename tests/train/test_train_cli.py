@@ -14,8 +14,8 @@ import pytest
 import yaml
 
 from tests.train.conftest import train_args
-from train.callbacks import latest_checkpoint
-from train.train import main
+from snake_env.train.callbacks import latest_checkpoint
+from snake_env.train.train import main
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -73,7 +73,7 @@ def test_sigint_saves_model_and_statistics(tmp_path):
     non-interactive shell), Ctrl-C saves the model and exits with 130."""
     run_dir = tmp_path / "interrupted"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    process = subprocess.Popen([sys.executable, "-m", "train", *train_args("ppo", run_dir, 10_000_000)],
+    process = subprocess.Popen([sys.executable, "-m", "snake_env.train", *train_args("ppo", run_dir, 10_000_000)],
                                cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:

@@ -16,9 +16,9 @@ import pytest
 import yaml
 from optuna.trial import TrialState
 
-from train import tune
-from train.train import main as train_main
-from train.tune_objective import TrialEvalCallback
+from snake_env.train import tune
+from snake_env.train.train import main as train_main
+from snake_env.train.tune_objective import TrialEvalCallback
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = "snake_env/Snake3-v1"
@@ -40,7 +40,7 @@ def load(out, name="ppo-Snake3-v1", storage=None):
 def worker(args, **kwargs) -> subprocess.Popen:
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1",
            "PYTHONPATH": str(REPO)}
-    return subprocess.Popen([sys.executable, "-m", "train.tune", *args], cwd=REPO, env=env, stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "snake_env.train.tune", *args], cwd=REPO, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, **kwargs)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tests.newest_ids import newest_id
-from train.evaluate import main
+from snake_env.train.evaluate import main
 
 ENV = newest_id("Snake3")
 STEPS = 30

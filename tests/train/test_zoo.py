@@ -12,8 +12,8 @@ import pytest
 import yaml
 
 from tests.newest_ids import newest_id
-from train import config as cfg
-from train.zoo import PROJECT_ONLY_KEYS, zoo_hyperparams
+from snake_env.train import config as cfg
+from snake_env.train.zoo import PROJECT_ONLY_KEYS, zoo_hyperparams
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = newest_id("Snake3")
@@ -43,7 +43,7 @@ def test_zoo_env_wrapper_builds_our_single_env_wrappers():
     import gymnasium as gym
 
     from snake_env.wrappers import JointTargetAction, PhaseObservation
-    from train.zoo import zoo_env_wrapper
+    from snake_env.train.zoo import zoo_env_wrapper
 
     spec = {"joint_target": {"kp": 1.0, "kd": 0.05}, "phase_observation": {"frequencies": [38.0]}}
     assert zoo_env_wrapper(spec) == [{"snake_env.wrappers.JointTargetAction": {"kp": 1.0, "kd": 0.05}},
@@ -62,7 +62,7 @@ def test_rl_zoo_train_and_enjoy(tmp_path):
            "OMP_NUM_THREADS": "1"}
     common = ["--algo", "ppo", "--env", ENV, "--gym-packages", "snake_env",
               "--env-kwargs", "max_episode_steps:50", "-f", "logs"]
-    trained = subprocess.run([sys.executable, "-m", "rl_zoo3.train", *common, "-conf", "train.zoo_ppo", "-n", "256",
+    trained = subprocess.run([sys.executable, "-m", "rl_zoo3.train", *common, "-conf", "snake_env.train.zoo_ppo", "-n", "256",
                             "--eval-freq", "-1", "-params", "n_envs:2", "n_steps:64", "batch_size:64", "n_epochs:1",
                             "policy_kwargs:dict(net_arch=[8])"],
                            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
