@@ -162,6 +162,20 @@ def parse_python_dict(text: str, name: str) -> dict:
     return value
 
 
+def python_text(value) -> str:
+    """``{"net_arch": [64], "activation_fn": "nn.Tanh"}`` -> ``"dict(net_arch=[64], activation_fn=nn.Tanh)"``,
+    the form ``configs/*.yaml`` use, :func:`parse_python_dict` reads and RL Zoo ``eval``s."""
+    if isinstance(value, dict):
+        if all(isinstance(k, str) and k.isidentifier() for k in value):
+            return "dict(" + ", ".join(f"{k}={python_text(v)}" for k, v in value.items()) + ")"
+        return "{" + ", ".join(f"{k!r}: {python_text(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(python_text(v) for v in value) + "]"
+    if isinstance(value, str) and value in ACTIVATIONS:
+        return value
+    return repr(value)
+
+
 def read_yaml(path) -> dict:
     path = Path(path)
     if not path.is_file():

@@ -136,19 +136,5 @@ def best_config_entry(config: dict) -> dict:
     """A validated run config as a ``configs/<algo>.yaml`` entry: without the
     run keys (algo, env id, seed), ``policy_kwargs`` in the zoo's string form."""
     entry = {k: v for k, v in config.items() if k not in cfg.RUN_KEYS}
-    entry["policy_kwargs"] = zoo_string(cfg.policy_kwargs_dict(config["policy_kwargs"]))
+    entry["policy_kwargs"] = cfg.python_text(cfg.policy_kwargs_dict(config["policy_kwargs"]))
     return entry
-
-
-def zoo_string(value) -> str:
-    """``{"net_arch": [64], "activation_fn": "nn.Tanh"}`` -> ``"dict(net_arch=[64], activation_fn=nn.Tanh)"``,
-    the form ``configs/*.yaml`` use and :func:`snake_env.train.config.parse_python_dict` reads."""
-    if isinstance(value, dict):
-        if all(isinstance(k, str) and k.isidentifier() for k in value):
-            return "dict(" + ", ".join(f"{k}={zoo_string(v)}" for k, v in value.items()) + ")"
-        return "{" + ", ".join(f"{k!r}: {zoo_string(v)}" for k, v in value.items()) + "}"
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(zoo_string(v) for v in value) + "]"
-    if isinstance(value, str) and value in cfg.ACTIVATIONS:
-        return value
-    return repr(value)

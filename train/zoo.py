@@ -23,17 +23,6 @@ from snake_env.train import config as cfg
 PROJECT_ONLY_KEYS = ("vec_env", "eval_freq", "n_eval_episodes", "checkpoint_freq", "torch_threads")
 
 
-def _as_python(value) -> str:
-    """A config value as the Python text RL Zoo ``eval``s (activation names stay names)."""
-    if isinstance(value, dict):
-        return "dict(" + ", ".join(f"{k}={_as_python(v)}" for k, v in value.items()) + ")"
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_as_python(v) for v in value) + "]"
-    if isinstance(value, str) and value in cfg.ACTIVATIONS:
-        return value
-    return repr(value)
-
-
 def zoo_env_wrapper(spec) -> list[dict]:
     """Our ``env_wrapper`` (``{name: kwargs}``, see :mod:`snake_env.wrappers`) in the zoo's form: a list of
     ``{"module.Class": kwargs}`` that ``rl_zoo3.utils.get_wrapper_class`` applies to each single env."""
@@ -51,7 +40,7 @@ def zoo_entry(entry: dict) -> dict:
     else:
         entry.pop("env_wrapper", None)
     if isinstance(entry.get("policy_kwargs"), dict):
-        entry["policy_kwargs"] = _as_python(entry["policy_kwargs"])
+        entry["policy_kwargs"] = cfg.python_text(entry["policy_kwargs"])
     if isinstance(entry.get("normalize"), str):
         entry["normalize"] = cfg.parse_python_dict(entry["normalize"], "normalize")
     return entry
