@@ -10,10 +10,12 @@ vector env equals N single envs step by step.
 
 from __future__ import annotations
 
+import math
 from dataclasses import fields
 
 import numpy as np
 from gymnasium import spaces
+from numba import njit
 
 from snake_env.tasks import Task, task_class
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_reset_info, common_step_info
@@ -60,12 +62,32 @@ def check_actions(action, shape: tuple) -> np.ndarray:
         raise ValueError(f"action must be a real array of shape {shape} in [-1, 1], got {action!r}") from None
     if a.shape != shape:
         raise ValueError(f"action must have shape {shape} (one value in [-1, 1] per joint), got {a.shape}")
-    if not np.isfinite(a).all():
+    if not _clip_if_finite(a.reshape(-1)):
         raise ValueError("action must be finite (no NaN or inf); values outside [-1, 1] are clipped")
-    # minimum/maximum in place: several times cheaper than np.clip on small arrays
-    np.minimum(a, 1.0, out=a)
-    np.maximum(a, -1.0, out=a)
     return a
+
+
+@njit(cache=True, nogil=True)
+def _clip_if_finite(a):
+    """Clip ``a`` to [-1, 1] in place; False (``a`` untouched past the first) at a NaN or inf.
+    Compiled: the single env's step is tens of microseconds, where np.isfinite, np.minimum
+    and np.maximum on a (n-1,) array would cost several."""
+    for i in range(a.size):
+        value = a[i]
+        if not math.isfinite(value):
+            return False
+        a[i] = min(max(value, -1.0), 1.0)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _scale_and_save(actions, max_torque, torques, q, q_prev):
+    """torques = max_torque * actions (N m); q_prev = q (one compiled call instead of two ufuncs)."""
+    for b in range(q.shape[0]):
+        for k in range(torques.shape[1]):
+            torques[b, k] = actions[b, k] * max_torque
+        for i in range(q.shape[1]):
+            q_prev[b, i] = q[b, i]
 
 
 class SnakeBatch:
@@ -87,6 +109,8 @@ class SnakeBatch:
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
         self.task_state = task.init_state(B)
+        self._context = StepContext(action=self.torques, torques=self.torques, q_prev=self.q_prev, q=self.q,
+                                    u=self.u, aux=self.aux, dt=config.dt)
 
     def observation(self):
         """The task's observation of every row (fresh arrays)."""
@@ -115,16 +139,15 @@ class SnakeBatch:
         """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,)).
         ``checked``: the actions are already a float64 copy clipped by :func:`check_actions`."""
         a = actions if checked else check_actions(actions, self.torques.shape)
-        np.multiply(a, self.config.max_torque, out=self.torques)
-        np.copyto(self.q_prev, self.q)
+        _scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev)
         physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux)
-        ctx = StepContext(action=a, torques=self.torques, q_prev=self.q_prev, q=self.q, u=self.u, aux=self.aux,
-                          dt=self.config.dt)
+        ctx = self._context
+        ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
-        info = common_step_info(ctx)
+        info, failures = common_step_info(ctx)
         info.update(task_info)
-        failed = ctx.failed
-        if failed.any():
+        if failures:
+            failed = info["sim_failure"]
             # A failed step was undone (the pre-step state is kept): it is not an outcome of
             # the action, so every task's reward and reward terms are exactly 0 and it never
             # terminates (the env truncates instead).

@@ -27,7 +27,6 @@ from .physics import AUX_X, AUX_Y
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
 # the forward task's info keys (``env.step_info_keys`` gives any task's)
 STEP_INFO_KEYS = COMMON_STEP_INFO_KEYS + ForwardTask.step_info_keys
-BOOL_INFO_KEYS = frozenset(("sim_failure", "is_success"))  # info flags; every other info value is a float
 __all__ = ["SnakeEnv", "SnakeGoalEnv", "STEP_INFO_KEYS", "RESET_INFO_KEYS", "TRAIL_LENGTH"]
 
 
@@ -98,12 +97,8 @@ class SnakeEnv(TaskEnvBase, gym.Env):
 
     @staticmethod
     def _first_info(info):
-        """Row 0 of a batched info as Python scalars."""
-        # one conversion for all keys (bool arrays become 0.0/1.0 here and bool again below)
-        out = dict(zip(info, np.concatenate(tuple(info.values())).tolist()))
-        for key in BOOL_INFO_KEYS.intersection(out):
-            out[key] = bool(out[key])
-        return out
+        """Row 0 of a batched info (arrays of shape (1,)) as Python floats and bools."""
+        return {key: value.item() for key, value in info.items()}
 
     def _restart_trail(self):
         aux = self._batch.aux[0]

@@ -12,6 +12,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import snake_env  # noqa: F401
 from snake_env.registration import REGISTERED_N_LINKS, TASK_IDS, registered_ids
 from snake_env.tasks import TASKS
+from snake_env.tasks.base import squared_norm
 
 # (id, kwargs) of every new task variant, on small snakes to keep the tests fast
 CASES = [
@@ -257,3 +258,11 @@ def test_rendering_draws_the_task_overlay(env_id, kwargs):
     assert frame.shape == (480, 480, 3)
     # the goal / path / command arc is drawn in the overlay colour
     assert np.any(np.all(frame == OVERLAY.astype(np.uint8), axis=-1))
+
+
+@pytest.mark.parametrize("length", [0, 1, 7, 8, 9, 29, 128, 129, 300, 1031])
+def test_compiled_squared_norm_has_the_bits_of_numpys_sum(length):
+    """The control cost's compiled ||a||^2 follows numpy's pairwise summation, so the forward
+    task's rewards keep the bits they had when they were computed with np.sum (the fixture)."""
+    a = np.random.default_rng(length).uniform(-1.0, 1.0, (3, length))
+    assert np.array_equal(squared_norm(a), np.sum(np.square(a), axis=-1))
