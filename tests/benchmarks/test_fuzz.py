@@ -38,3 +38,16 @@ def test_fuzz_cli_rejects_bad_sizes(capsys):
         fuzz.main(["--num-envs", "1"])
     assert exc.value.code == 2
     assert "--num-envs" in capsys.readouterr().err
+
+
+def test_a_time_capped_cell_stops_early_and_says_how_far_it_got():
+    cell = next(c for c in fuzz.matrix() if (c["n_links"], c["max_torque"], c["length"], c["mass"]) == (5, 1.0, 0.2, 1.0))
+    row = fuzz.run_cell(cell, num_envs=16, steps=16 * 10 ** 6, seed=0, max_seconds=0.2)
+    assert 0 < row["env_steps"] < 16 * 10 ** 6 and row["leaked"] == 0
+
+
+def test_fuzz_cli_rejects_a_non_positive_time_cap(capsys):
+    with pytest.raises(SystemExit) as exc:
+        fuzz.main(["--seconds-per-cell", "0"])
+    assert exc.value.code == 2
+    assert "--seconds-per-cell" in capsys.readouterr().err
