@@ -3,7 +3,9 @@
 Neither PyTorch nor Stable-Baselines3 is imported here: the ONNX graph maps
 the raw env observation to the env action (normalization, deterministic
 action, clipping/rescaling folded in), and its metadata names the env id and
-env kwargs it was trained on.
+env kwargs it was trained on. A policy trained with opt-in wrappers
+(``env_wrapper``) maps the wrapped observation to the wrapped action: wrap the
+env the same way, ``snake_env.wrappers.wrap_env(env, policy.env_wrapper)``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ class OnnxPolicy:
     """``act(obs) -> action`` from an exported ``.onnx`` file.
 
     Attributes: ``metadata`` (dict of the model's metadata_props), ``env_id``,
-    ``env_kwargs`` (dict), ``obs_size``, ``action_size``.
+    ``env_kwargs`` (dict), ``env_wrapper`` (the ``wrap_env`` spec, or None),
+    ``obs_size``, ``action_size``.
     """
 
     def __init__(self, path):
@@ -48,6 +51,8 @@ class OnnxPolicy:
         self.path = path
         self.env_id = self.metadata["env_id"]
         self.env_kwargs = json.loads(self.metadata.get("env_kwargs", "{}"))
+        # opt-in wrappers the policy was trained in (snake_env.wrappers.wrap_env spec), or None
+        self.env_wrapper = json.loads(self.metadata.get("env_wrapper", "null"))
         self.obs_size = int(self.metadata["obs_size"])
         self.action_size = int(self.metadata["action_size"])
         self.input_name = self.session.get_inputs()[0].name

@@ -21,6 +21,7 @@ import onnxruntime as ort
 import snake_env  # noqa: F401  (registers the snake ids)
 from snake_env.agents.onnx_policy import OnnxPolicy, OnnxPolicyError
 from snake_env.train.evaluate import print_table, run_episodes, summarize
+from snake_env.wrappers import wrap_env
 
 
 def main(argv=None) -> int:
@@ -35,7 +36,8 @@ def main(argv=None) -> int:
         policy = OnnxPolicy(args.onnx)  # an onnxruntime.InferenceSession and the metadata
     except OnnxPolicyError as exc:
         parser.exit(2, f"run_onnx.py: error: {exc}\n")
-    env = gym.make(policy.env_id, **policy.env_kwargs)
+    # a policy trained with opt-in wrappers (joint targets, a clock, a CPG) acts in the wrapped env
+    env = wrap_env(gym.make(policy.env_id, **policy.env_kwargs), policy.env_wrapper)
     policy.check_spaces(env.observation_space, env.action_space)
     results, _ = run_episodes(env, policy.act, lambda: None, args.episodes, args.seed)
     env.close()

@@ -24,6 +24,19 @@ arguments and the same per-step arithmetic:
   step, held over its RK4 sub-steps: the env's own action contract), so a very
   stiff PD overshoots; see docs/learning.md for the measured tracking.
 
+* ``cpg`` (:class:`CPGAction`): the action sets the parameters of a central
+  pattern generator, as in CPG-RL (Bellegarda and Ijspeert, 2022): amplitude
+  alpha (rad), frequency omega (rad/s), phase lag beta (rad), offset gamma
+  (rad) and the PD gains kp, kd of one serpenoid wave. The wrapper integrates
+  the oscillator's phase psi += omega dt and tracks
+  ``phi_i^ref = alpha sin(psi + (i-1) beta) + gamma`` with
+  ``phidot_i^ref = alpha omega cos(psi + (i-1) beta)`` by the saturated PD, so
+  a constant action is exactly the searched ``pd`` serpenoid of
+  :mod:`snake_env.agents.serpenoid` and the policy modulates it from state
+  feedback; ``sin psi, cos psi`` are appended to the observation. The ranges
+  default to the serpenoid search's ``pd`` box (:data:`snake_env.agents.search.BOXES`),
+  so the policy and the baseline choose from the same gaits.
+
 The train config selects them with the ``env_wrapper`` key (after RL Zoo's
 key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
 
@@ -129,7 +142,7 @@ class _PDSettings:
         return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32)
 
 
-class JointTargetAction(gym.Wrapper):
+class JointTargetAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Action = target joint angles (fraction of ``target_range``, in [-1, 1]),
     tracked by a joint PD within the torque limit.
 
@@ -143,6 +156,8 @@ class JointTargetAction(gym.Wrapper):
 
     def __init__(self, env: gym.Env, kp: float = 1.0, kd: float = 0.05, target_range: float | None = None,
                  reference_rate: str = "difference"):
+        gym.utils.RecordConstructorArgs.__init__(self, kp=kp, kd=kd, target_range=target_range,
+                                                 reference_rate=reference_rate)
         super().__init__(env)
         self.pd = _PDSettings(env, kp, kd, target_range, reference_rate)
         self._obs = None
@@ -203,7 +218,7 @@ class JointTargetActionVector(VectorWrapper):
         return obs, reward, terminated, truncated, info
 
 
-class PhaseObservation(gym.Wrapper):
+class PhaseObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Appends ``sin(w t), cos(w t)`` per frequency ``w`` (rad/s) to the
     observation; ``t`` (s) counts env steps since the reset times the env's dt.
 
@@ -213,6 +228,7 @@ class PhaseObservation(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, frequencies=25.0):
+        gym.utils.RecordConstructorArgs.__init__(self, frequencies=frequencies)
         super().__init__(env)
         self.omega = _frequencies(frequencies)
         self.dt = _geometry(env)["dt"]
@@ -283,9 +299,167 @@ class PhaseObservationVector(VectorWrapper):
         return self._augment(obs, self._steps), reward, terminated, truncated, info
 
 
+CPG_PARAMETERS = ("amplitude", "frequency", "phase_lag", "offset", "kp", "kd")
+
+
+class _CPGSettings:
+    """Validated ranges of the CPG action and its arithmetic (shared by the single and vector wrapper).
+
+    Action entries in [-1, 1], in the order of :data:`CPG_PARAMETERS`: amplitude in
+    [0, max_amplitude] rad, frequency in [0, max_frequency] rad/s, phase lag in
+    [-pi, pi] rad, offset in [-max_offset, max_offset] rad (all linear), kp in
+    [min_kp, max_kp] N m/rad (log scale), kd in [0, max_kd] N m s/rad (linear).
+    """
+
+    def __init__(self, env, max_amplitude, max_frequency, max_offset, min_kp, max_kp, max_kd):
+        g = _geometry(env)
+        self.max_amplitude = _number("max_amplitude", max_amplitude, "rad", strict=True)
+        self.max_frequency = _number("max_frequency", max_frequency, "rad/s", strict=True)
+        self.max_offset = _number("max_offset", max_offset, "rad")
+        self.min_kp = _number("min_kp", min_kp, "N m/rad", strict=True)
+        self.max_kp = _number("max_kp", max_kp, "N m/rad", minimum=self.min_kp)
+        self.max_kd = _number("max_kd", max_kd, "N m s/rad")
+        self.n_joints = g["n_links"] - 1
+        self.dt, self.max_torque, self.phi, self.rates = g["dt"], g["max_torque"], g["phi"], g["rates"]
+
+    def decode(self, action) -> dict[str, np.ndarray]:
+        """Oscillator parameters (each of shape (...,)) of actions (..., 6)."""
+        u = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        half = 0.5 * (u + 1.0)  # in [0, 1]
+        return {"amplitude": half[..., 0] * self.max_amplitude,
+                "frequency": half[..., 1] * self.max_frequency,
+                "phase_lag": u[..., 2] * math.pi,
+                "offset": u[..., 3] * self.max_offset,
+                "kp": self.min_kp * (self.max_kp / self.min_kp) ** half[..., 4],
+                "kd": half[..., 5] * self.max_kd}
+
+    def encode(self, amplitude, frequency, phase_lag, offset, kp, kd) -> np.ndarray:
+        """The action (float64, 6) whose :meth:`decode` gives these parameters (a serpenoid as a CPG action)."""
+        values = [2.0 * amplitude / self.max_amplitude - 1.0, 2.0 * frequency / self.max_frequency - 1.0,
+                  phase_lag / math.pi, offset / self.max_offset if self.max_offset else 0.0,
+                  2.0 * math.log(kp / self.min_kp) / math.log(self.max_kp / self.min_kp) - 1.0
+                  if self.max_kp > self.min_kp else 0.0,
+                  2.0 * kd / self.max_kd - 1.0 if self.max_kd else -1.0]
+        action = np.array(values)
+        if not np.all(np.abs(action) <= 1.0 + 1e-12):
+            raise ValueError(f"parameters outside the CPG's ranges: {dict(zip(CPG_PARAMETERS, values))}")
+        return np.clip(action, -1.0, 1.0)
+
+    def torque_action(self, action, obs, phase) -> tuple[np.ndarray, np.ndarray]:
+        """(env action = PD torque / max_torque in [-1, 1] (float32), phase after the step (rad))."""
+        p = self.decode(action)
+        obs = np.asarray(obs, dtype=np.float64)
+        angle = np.asarray(phase, dtype=np.float64)[..., None] + np.arange(self.n_joints) * p["phase_lag"][..., None]
+        amplitude = p["amplitude"][..., None]
+        reference = amplitude * np.sin(angle) + p["offset"][..., None]
+        reference_rate = amplitude * p["frequency"][..., None] * np.cos(angle)
+        torque = p["kp"][..., None] * (reference - obs[..., self.phi]) \
+            + p["kd"][..., None] * (reference_rate - obs[..., self.rates])
+        next_phase = np.mod(phase + p["frequency"] * self.dt, 2.0 * math.pi)
+        return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32), next_phase
+
+
+def _with_phase(obs: np.ndarray, phase) -> np.ndarray:
+    """obs with sin(phase), cos(phase) appended (last axis)."""
+    phase = np.asarray(phase, dtype=np.float64)
+    extra = np.stack([np.sin(phase), np.cos(phase)], axis=-1).astype(obs.dtype)
+    return np.concatenate([obs, extra], axis=-1)
+
+
+def _cpg_action_space() -> spaces.Box:
+    return spaces.Box(-1.0, 1.0, (len(CPG_PARAMETERS),), np.float32)
+
+
+class CPGAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Action = parameters of a serpenoid CPG (see :class:`_CPGSettings`), tracked by a
+    joint PD within the torque limit; observation + (sin psi, cos psi) of the oscillator.
+
+    Args (defaults: the serpenoid search's ``pd`` box):
+        max_amplitude: rad, default 1.5.
+        max_frequency: rad/s, default 40 (>= 4 env steps per gait period).
+        max_offset: rad, default 0.5 (turning).
+        min_kp, max_kp: N m/rad, default 0.3 and 30 (log scale between).
+        max_kd: N m s/rad, default 2.0.
+    """
+
+    def __init__(self, env: gym.Env, max_amplitude: float = 1.5, max_frequency: float = 40.0,
+                 max_offset: float = 0.5, min_kp: float = 0.3, max_kp: float = 30.0, max_kd: float = 2.0):
+        gym.utils.RecordConstructorArgs.__init__(self, max_amplitude=max_amplitude, max_frequency=max_frequency,
+                                                 max_offset=max_offset, min_kp=min_kp, max_kp=max_kp, max_kd=max_kd)
+        super().__init__(env)
+        self.cpg = _CPGSettings(env, max_amplitude, max_frequency, max_offset, min_kp, max_kp, max_kd)
+        self.action_space = _cpg_action_space()
+        self.observation_space = _extend_box(env.observation_space, 2)
+        self._obs = None
+        self._phase = 0.0
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._obs = obs
+        self._phase = np.float64(0.0)
+        return _with_phase(obs, self._phase), info
+
+    def step(self, action):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        torque, self._phase = self.cpg.torque_action(action, self._obs, self._phase)
+        obs, reward, terminated, truncated, info = self.env.step(torque)
+        self._obs = obs
+        return _with_phase(obs, self._phase), reward, terminated, truncated, info
+
+
+class CPGActionVector(VectorWrapper):
+    """:class:`CPGAction` for a batched vector env: one oscillator per sub-env, its phase
+    restarted at 0 with the sub-env's (auto)reset."""
+
+    def __init__(self, env, max_amplitude: float = 1.5, max_frequency: float = 40.0, max_offset: float = 0.5,
+                 min_kp: float = 0.3, max_kp: float = 30.0, max_kd: float = 2.0):
+        super().__init__(env)
+        self.cpg = _CPGSettings(env, max_amplitude, max_frequency, max_offset, min_kp, max_kp, max_kd)
+        self.single_action_space = _cpg_action_space()
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.single_observation_space = _extend_box(env.single_observation_space, 2)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._obs = None
+        self._phase = np.zeros(self.num_envs)
+        self._pending_reset = np.zeros(self.num_envs, bool)
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        mask = (options or {}).get("reset_mask")
+        rows = slice(None) if mask is None else np.asarray(mask, dtype=bool)
+        self._phase[rows] = 0.0
+        self._pending_reset[rows] = False
+        self._obs = obs
+        return _with_phase(obs, self._phase), info
+
+    def step(self, actions):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        # rows being auto-reset (next-step mode) ignore their action; their phase restarts below
+        torque, phase = self.cpg.torque_action(actions, self._obs, self._phase)
+        obs, reward, terminated, truncated, info = self.env.step(torque)
+        self._obs = obs
+        self._phase = phase
+        done = np.asarray(terminated | truncated)
+        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+        if mode == AutoresetMode.NEXT_STEP:
+            self._phase[self._pending_reset] = 0.0  # reset by this call
+            self._pending_reset = done.copy()
+        elif mode == AutoresetMode.SAME_STEP and done.any():
+            if "final_obs" in info:
+                final = info["final_obs"].copy()
+                for i in np.flatnonzero(done):
+                    final[i] = _with_phase(np.asarray(final[i]), self._phase[i])
+                info = {**info, "final_obs": final}
+            self._phase[done] = 0.0
+        return _with_phase(obs, self._phase), reward, terminated, truncated, info
+
+
 WRAPPERS = {
     "phase_observation": (PhaseObservation, PhaseObservationVector),
     "joint_target": (JointTargetAction, JointTargetActionVector),
+    "cpg": (CPGAction, CPGActionVector),
 }
 
 

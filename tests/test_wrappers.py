@@ -1,8 +1,9 @@
-"""Opt-in phase observation and joint-target action (snake_env.wrappers), single and vector env."""
+"""Opt-in phase observation, joint-target and CPG actions (snake_env.wrappers), single and vector env."""
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -12,8 +13,8 @@ from gymnasium.vector import AutoresetMode
 import snake_env  # noqa: F401
 from snake_env.agents.search import load_params
 from snake_env.agents.serpenoid import SerpenoidController
-from snake_env.wrappers import (JointTargetAction, JointTargetActionVector, PhaseObservation, PhaseObservationVector,
-                                parse_env_wrapper, wrap_env, wrap_vector_env)
+from snake_env.wrappers import (CPGAction, CPGActionVector, JointTargetAction, JointTargetActionVector,
+                                PhaseObservation, PhaseObservationVector, parse_env_wrapper, wrap_env, wrap_vector_env)
 
 ENV = "snake_env/Snake3-v1"
 
@@ -124,13 +125,16 @@ def test_phase_clock_runs_with_env_time_and_restarts_on_autoreset():
 
 
 @pytest.mark.parametrize("spec, message", [
-    ({"joint_targets": {}}, "env_wrapper name must be one of ['joint_target', 'phase_observation'], got 'joint_targets'"),
+    ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'joint_target', 'phase_observation'], got 'joint_targets'"),
     ("torque_mode", "env_wrapper name must be one of"),
     ({"joint_target": {"kp": -1.0}}, "kp must be a finite number >= 0"),
     ({"joint_target": {"gain": 1.0}}, "env_wrapper 'joint_target': "),
     ({"phase_observation": {"frequencies": []}}, "frequencies must be a number or a non-empty list"),
     ({"joint_target": {"kp": 0.0, "kd": 0.0}}, "joint_target needs kp > 0 or kd > 0"),
     ({"joint_target": {"reference_rate": "exact"}}, "reference_rate must be one of ['difference', 'zero'], got 'exact'"),
+    ({"cpg": {"max_frequency": 0.0}}, "max_frequency must be a finite number > 0.0 (rad/s), got 0.0"),
+    ({"cpg": {"max_kp": 0.1}}, "max_kp must be a finite number >= 0.3 (N m/rad), got 0.1"),
+    ({"cpg": {"frequency": 5.0}}, "env_wrapper 'cpg': "),
 ])
 def test_bad_wrapper_specs_are_rejected_with_one_line(spec, message):
     with pytest.raises(ValueError) as info:
@@ -153,3 +157,63 @@ def test_train_config_rejects_a_bad_wrapper_name_in_one_line():
     with pytest.raises(ConfigError) as info:
         build_config("ppo", "snake_env/Snake12-v1", overrides=["env_wrapper={joint_targte: {kp: 1.0}}"])
     assert "env_wrapper name must be one of" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_constant_cpg_action_is_the_searched_serpenoid():
+    """CPG-RL action mode against the serpenoid controller: the action that encodes a
+    searched ``pd`` gait gives the controller's env actions step for step (the phase is
+    summed as omega dt and wrapped, the controller's is omega t: equal to rounding)."""
+    env_id = "snake_env/Snake12-v1"
+    params, _ = load_params(env_id)
+    cpg = CPGAction(gym.make(env_id))
+    plain = gym.make(env_id)
+    controller = SerpenoidController(params, n_links=12, max_torque=1.0, dt=0.04)
+    action = cpg.cpg.encode(params.amplitude, params.frequency, params.phase_lag, params.offset, params.kp,
+                            params.kd)
+    np.testing.assert_allclose([cpg.cpg.decode(action)[name] for name in
+                                ("amplitude", "frequency", "phase_lag", "offset", "kp", "kd")],
+                               [params.amplitude, params.frequency, params.phase_lag, params.offset, params.kp,
+                                params.kd], rtol=1e-12)
+    assert cpg.action_space.shape == (6,) and cpg.observation_space.shape == (plain.observation_space.shape[0] + 2,)
+    obs, _ = cpg.reset(seed=3)
+    plain_obs, _ = plain.reset(seed=3)
+    speeds = []
+    for k in range(200):
+        expected = controller.act(plain_obs)
+        torque, _ = cpg.cpg.torque_action(action, cpg._obs, cpg._phase)
+        np.testing.assert_allclose(torque, expected, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(obs[-2:], [math.sin(cpg._phase), math.cos(cpg._phase)], atol=1e-6)
+        obs, _, _, _, info = cpg.step(action)
+        plain_obs, *_ = plain.step(expected)
+        speeds.append(info["x_velocity"])
+    assert np.mean(speeds[50:]) > 0.9  # the searched gait's 1.05 m/s, not a stalled snake
+
+
+def test_cpg_vector_wrapper_matches_the_single_one_and_restarts_the_phase_on_autoreset():
+    single = CPGAction(gym.make(ENV, max_episode_steps=6), max_frequency=30.0)
+    vector = CPGActionVector(gym.make_vec(ENV, num_envs=2, vectorization_mode="vector_entry_point",
+                                          max_episode_steps=6), max_frequency=30.0)
+    assert vector.single_action_space == single.action_space
+    assert vector.single_observation_space == single.observation_space
+    obs, _ = single.reset(seed=5)
+    vobs, _ = vector.reset(seed=5)
+    np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
+    rng = np.random.default_rng(2)
+    for k in range(9):
+        action = rng.uniform(-1, 1, 6).astype(np.float32)
+        obs, _, _, truncated, _ = single.step(action)
+        vobs, *_ = vector.step(np.stack([action, action]))
+        if k < 6:  # next-step autoreset: the vector's step 7 resets row 0 (phase 0), the single env is truncated
+            np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
+        if k == 6:
+            np.testing.assert_allclose(vobs[:, -2:], [[0.0, 1.0], [0.0, 1.0]], atol=1e-12)
+        if truncated:
+            obs, _ = single.reset(seed=None)
+
+
+def test_cpg_wrapped_env_passes_gymnasiums_env_checker():
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "wrapped env" and unbounded-Box advice
+        check_env(CPGAction(gym.make("snake_env/Snake5-v1")), skip_render_check=True)

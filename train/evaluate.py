@@ -356,7 +356,7 @@ def onnx_actor(args):
         raise EvalError(str(exc)) from None
     if args.env_id and args.env_id != policy.env_id:
         raise EvalError(f"{args.onnx} was exported for {policy.env_id}, not {args.env_id}")
-    env = make_env(policy.env_id, policy.env_kwargs, render=False)
+    env = make_env(policy.env_id, policy.env_kwargs, render=False, env_wrapper=policy.env_wrapper)
     try:
         policy.check_spaces(env.observation_space, env.action_space)
     except OnnxPolicyError as exc:
@@ -365,7 +365,8 @@ def onnx_actor(args):
         env.close()
     algo = policy.metadata.get("algo", "onnx")
     title = f"{algo.upper()} {args.onnx} on {policy.env_id} (ONNX, onnxruntime; deterministic)"
-    return policy.env_id, policy.env_kwargs, policy.act, lambda: None, title, {"algo": algo, "onnx": str(args.onnx)}
+    meta = {"algo": algo, "onnx": str(args.onnx), **({"env_wrapper": policy.env_wrapper} if policy.env_wrapper else {})}
+    return policy.env_id, policy.env_kwargs, policy.act, lambda: None, title, meta
 
 
 def serpenoid_actor(args):

@@ -23,6 +23,13 @@ float32 joint torques in units of ``max_torque``. The model's metadata
 (``metadata_props``) holds the env id, its env kwargs (JSON), n_links, the
 observation and action sizes, the algorithm and the snake_env version; the
 graph is validated with ``onnx.checker`` before it is written (atomically).
+
+A run trained with opt-in wrappers (``env_wrapper``: joint targets, a phase
+clock, a CPG; :mod:`snake_env.wrappers`) exports its network between the
+*wrapped* observation and action; the metadata key ``env_wrapper`` (JSON)
+names the wrappers, which ``snake-eval --onnx`` and
+:class:`snake_env.agents.onnx_policy.OnnxPolicy` users apply around the env
+(a few lines of numpy per step, documented in that module).
 """
 
 from __future__ import annotations
@@ -74,12 +81,13 @@ def check_output(path: Path) -> None:
 
 
 def load_for_export(target, env_id=None):
-    """(loaded policy, env_id, env_kwargs, observation_space, action_space, n_links) of a run."""
+    """(loaded policy, env_id, env_kwargs, env_wrapper, observation_space, action_space, n_links) of a run."""
     import gymnasium as gym
 
     import snake_env  # noqa: F401  (registers the ids)
     from snake_env.agents.policy_loading import PolicyLoadError, detect_algo, load_policy, locate
     from snake_env.train.config import ConfigError, load_run_config
+    from snake_env.wrappers import wrap_env
 
     try:
         files = locate(target)
@@ -93,17 +101,19 @@ def load_for_export(target, env_id=None):
     if env_id is None:
         raise ExportError(f"no config.yaml beside {files.model}; pass --env ID")
     env_kwargs = dict(config.get("env_kwargs") or {})
+    env_wrapper = config.get("env_wrapper") or None
     try:
-        env = gym.make(env_id, **env_kwargs)
+        env = wrap_env(gym.make(env_id, **env_kwargs), env_wrapper)
     except (ValueError, TypeError, gym.error.Error) as exc:
-        raise ExportError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
+        raise ExportError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs} and env_wrapper {env_wrapper}: "
+                          f"{_first_line(exc)}") from None
     try:
         if not isinstance(env.observation_space, gym.spaces.Box) or not isinstance(env.action_space, gym.spaces.Box):
             raise ExportError(f"{env_id} has {type(env.observation_space).__name__} observations and "
                               f"{type(env.action_space).__name__} actions; export supports Box spaces only")
         loaded = load_policy(files.model, env.observation_space, env.action_space, config)
         n_links = int(getattr(env.unwrapped, "n_links", env.action_space.shape[0] + 1))
-        return loaded, env_id, env_kwargs, env.observation_space, env.action_space, n_links
+        return loaded, env_id, env_kwargs, env_wrapper, env.observation_space, env.action_space, n_links
     except PolicyLoadError as exc:
         raise ExportError(str(exc)) from None
     finally:
@@ -172,7 +182,7 @@ def export_onnx(target, out, env_id=None, opset: int = OPSET) -> dict:
 
     out = Path(out)
     check_output(out)
-    loaded, env_id, env_kwargs, obs_space, action_space, n_links = load_for_export(target, env_id)
+    loaded, env_id, env_kwargs, env_wrapper, obs_space, action_space, n_links = load_for_export(target, env_id)
     module = policy_graph(loaded, action_space)
     dummy = torch.zeros((1, obs_space.shape[0]), dtype=torch.float32)
     buffer = io.BytesIO()
@@ -193,6 +203,7 @@ def export_onnx(target, out, env_id=None, opset: int = OPSET) -> dict:
         "vecnormalize": "folded" if module.normalize else "none",
         "snake_env_version": snake_env.__version__,
         "source_model": loaded.files.model.name,
+        **({"env_wrapper": json.dumps(env_wrapper, sort_keys=True)} if env_wrapper else {}),
     }
     model.producer_name = "snake_env"
     model.producer_version = snake_env.__version__
