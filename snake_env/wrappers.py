@@ -26,16 +26,17 @@ arguments and the same per-step arithmetic:
 
 * ``cpg`` (:class:`CPGAction`): the action sets the parameters of a central
   pattern generator, as in CPG-RL (Bellegarda and Ijspeert, 2022): amplitude
-  alpha (rad), frequency omega (rad/s), phase lag beta (rad), offset gamma
-  (rad) and the PD gains kp, kd of one serpenoid wave. The wrapper integrates
+  alpha (rad), frequency omega (rad/s), phase lag beta (rad) and offset gamma
+  (rad) of one serpenoid wave; the PD gains are kwargs. The wrapper integrates
   the oscillator's phase psi += omega dt and tracks
   ``phi_i^ref = alpha sin(psi + (i-1) beta) + gamma`` with
   ``phidot_i^ref = alpha omega cos(psi + (i-1) beta)`` by the saturated PD, so
   a constant action is exactly the searched ``pd`` serpenoid of
-  :mod:`snake_env.agents.serpenoid` and the policy modulates it from state
-  feedback; ``sin psi, cos psi`` are appended to the observation. The ranges
-  default to the serpenoid search's ``pd`` box (:data:`snake_env.agents.search.BOXES`),
-  so the policy and the baseline choose from the same gaits.
+  :mod:`snake_env.agents.serpenoid` with those gains, and the policy modulates
+  it from state feedback; ``sin psi, cos psi`` are appended to the observation.
+  The ranges default to the serpenoid search's ``pd`` box
+  (:data:`snake_env.agents.search.BOXES`), so the policy and the baseline
+  choose from the same gaits.
 
 The train config selects them with the ``env_wrapper`` key (after RL Zoo's
 key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
@@ -299,47 +300,43 @@ class PhaseObservationVector(VectorWrapper):
         return self._augment(obs, self._steps), reward, terminated, truncated, info
 
 
-CPG_PARAMETERS = ("amplitude", "frequency", "phase_lag", "offset", "kp", "kd")
+CPG_PARAMETERS = ("amplitude", "frequency", "phase_lag", "offset")
 
 
 class _CPGSettings:
     """Validated ranges of the CPG action and its arithmetic (shared by the single and vector wrapper).
 
-    Action entries in [-1, 1], in the order of :data:`CPG_PARAMETERS`: amplitude in
-    [0, max_amplitude] rad, frequency in [0, max_frequency] rad/s, phase lag in
-    [-pi, pi] rad, offset in [-max_offset, max_offset] rad (all linear), kp in
-    [min_kp, max_kp] N m/rad (log scale), kd in [0, max_kd] N m s/rad (linear).
+    Action entries in [-1, 1], in the order of :data:`CPG_PARAMETERS`, mapped
+    linearly: amplitude to [0, max_amplitude] rad, frequency to [0,
+    max_frequency] rad/s, phase lag to [-pi, pi] rad, offset to [-max_offset,
+    max_offset] rad. PD gains kp (N m/rad), kd (N m s/rad).
     """
 
-    def __init__(self, env, max_amplitude, max_frequency, max_offset, min_kp, max_kp, max_kd):
+    def __init__(self, env, max_amplitude, max_frequency, max_offset, kp, kd):
         g = _geometry(env)
         self.max_amplitude = _number("max_amplitude", max_amplitude, "rad", strict=True)
         self.max_frequency = _number("max_frequency", max_frequency, "rad/s", strict=True)
         self.max_offset = _number("max_offset", max_offset, "rad")
-        self.min_kp = _number("min_kp", min_kp, "N m/rad", strict=True)
-        self.max_kp = _number("max_kp", max_kp, "N m/rad", minimum=self.min_kp)
-        self.max_kd = _number("max_kd", max_kd, "N m s/rad")
+        self.kp = _number("kp", kp, "N m/rad")
+        self.kd = _number("kd", kd, "N m s/rad")
+        if self.kp == 0 and self.kd == 0:
+            raise ValueError("cpg needs kp > 0 or kd > 0 (N m/rad, N m s/rad)")
         self.n_joints = g["n_links"] - 1
         self.dt, self.max_torque, self.phi, self.rates = g["dt"], g["max_torque"], g["phi"], g["rates"]
 
     def decode(self, action) -> dict[str, np.ndarray]:
-        """Oscillator parameters (each of shape (...,)) of actions (..., 6)."""
+        """Oscillator parameters (each of shape (...,)) of actions (..., 4)."""
         u = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         half = 0.5 * (u + 1.0)  # in [0, 1]
         return {"amplitude": half[..., 0] * self.max_amplitude,
                 "frequency": half[..., 1] * self.max_frequency,
                 "phase_lag": u[..., 2] * math.pi,
-                "offset": u[..., 3] * self.max_offset,
-                "kp": self.min_kp * (self.max_kp / self.min_kp) ** half[..., 4],
-                "kd": half[..., 5] * self.max_kd}
+                "offset": u[..., 3] * self.max_offset}
 
-    def encode(self, amplitude, frequency, phase_lag, offset, kp, kd) -> np.ndarray:
-        """The action (float64, 6) whose :meth:`decode` gives these parameters (a serpenoid as a CPG action)."""
+    def encode(self, amplitude, frequency, phase_lag, offset=0.0) -> np.ndarray:
+        """The action (float64, 4) whose :meth:`decode` gives these parameters (a serpenoid as a CPG action)."""
         values = [2.0 * amplitude / self.max_amplitude - 1.0, 2.0 * frequency / self.max_frequency - 1.0,
-                  phase_lag / math.pi, offset / self.max_offset if self.max_offset else 0.0,
-                  2.0 * math.log(kp / self.min_kp) / math.log(self.max_kp / self.min_kp) - 1.0
-                  if self.max_kp > self.min_kp else 0.0,
-                  2.0 * kd / self.max_kd - 1.0 if self.max_kd else -1.0]
+                  phase_lag / math.pi, offset / self.max_offset if self.max_offset else 0.0]
         action = np.array(values)
         if not np.all(np.abs(action) <= 1.0 + 1e-12):
             raise ValueError(f"parameters outside the CPG's ranges: {dict(zip(CPG_PARAMETERS, values))}")
@@ -353,8 +350,7 @@ class _CPGSettings:
         amplitude = p["amplitude"][..., None]
         reference = amplitude * np.sin(angle) + p["offset"][..., None]
         reference_rate = amplitude * p["frequency"][..., None] * np.cos(angle)
-        torque = p["kp"][..., None] * (reference - obs[..., self.phi]) \
-            + p["kd"][..., None] * (reference_rate - obs[..., self.rates])
+        torque = self.kp * (reference - obs[..., self.phi]) + self.kd * (reference_rate - obs[..., self.rates])
         next_phase = np.mod(phase + p["frequency"] * self.dt, 2.0 * math.pi)
         return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32), next_phase
 
@@ -374,20 +370,21 @@ class CPGAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Action = parameters of a serpenoid CPG (see :class:`_CPGSettings`), tracked by a
     joint PD within the torque limit; observation + (sin psi, cos psi) of the oscillator.
 
-    Args (defaults: the serpenoid search's ``pd`` box):
+    Args (ranges: the serpenoid search's ``pd`` box):
         max_amplitude: rad, default 1.5.
         max_frequency: rad/s, default 40 (>= 4 env steps per gait period).
         max_offset: rad, default 0.5 (turning).
-        min_kp, max_kp: N m/rad, default 0.3 and 30 (log scale between).
-        max_kd: N m s/rad, default 2.0.
+        kp: PD stiffness (N m/rad), default 1.0.
+        kd: PD damping (N m s/rad), default 0.05 (the searched Snake5/12/30 gaits
+            have kp 0.6-1.3, kd 0.02-0.1).
     """
 
     def __init__(self, env: gym.Env, max_amplitude: float = 1.5, max_frequency: float = 40.0,
-                 max_offset: float = 0.5, min_kp: float = 0.3, max_kp: float = 30.0, max_kd: float = 2.0):
+                 max_offset: float = 0.5, kp: float = 1.0, kd: float = 0.05):
         gym.utils.RecordConstructorArgs.__init__(self, max_amplitude=max_amplitude, max_frequency=max_frequency,
-                                                 max_offset=max_offset, min_kp=min_kp, max_kp=max_kp, max_kd=max_kd)
+                                                 max_offset=max_offset, kp=kp, kd=kd)
         super().__init__(env)
-        self.cpg = _CPGSettings(env, max_amplitude, max_frequency, max_offset, min_kp, max_kp, max_kd)
+        self.cpg = _CPGSettings(env, max_amplitude, max_frequency, max_offset, kp, kd)
         self.action_space = _cpg_action_space()
         self.observation_space = _extend_box(env.observation_space, 2)
         self._obs = None
@@ -413,9 +410,9 @@ class CPGActionVector(VectorWrapper):
     restarted at 0 with the sub-env's (auto)reset."""
 
     def __init__(self, env, max_amplitude: float = 1.5, max_frequency: float = 40.0, max_offset: float = 0.5,
-                 min_kp: float = 0.3, max_kp: float = 30.0, max_kd: float = 2.0):
+                 kp: float = 1.0, kd: float = 0.05):
         super().__init__(env)
-        self.cpg = _CPGSettings(env, max_amplitude, max_frequency, max_offset, min_kp, max_kp, max_kd)
+        self.cpg = _CPGSettings(env, max_amplitude, max_frequency, max_offset, kp, kd)
         self.single_action_space = _cpg_action_space()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.single_observation_space = _extend_box(env.single_observation_space, 2)

@@ -145,7 +145,7 @@ def test_onnx_runner_without_torch_matches_snake_eval(runs, tmp_path):
 
 def test_a_run_with_opt_in_wrappers_exports_and_evaluates_in_the_wrapped_env(tmp_path):
     """The network of a CPG-action run maps the wrapped observation (+2 phase entries) to the
-    6 CPG parameters; the metadata names the wrappers and snake-eval --onnx applies them,
+    4 CPG parameters; the metadata names the wrappers and snake-eval --onnx applies them,
     giving SB3's evaluation over a short horizon (longer ones diverge by chaos from float32
     rounding, as any two float32 implementations of the same policy would)."""
     from snake_env.train.train import main
@@ -156,7 +156,7 @@ def test_a_run_with_opt_in_wrappers_exports_and_evaluates_in_the_wrapped_env(tmp
     assert export_main([str(run_dir), "--out", str(out)]) == 0
     meta = read_metadata(out)
     assert json.loads(meta["env_wrapper"]) == {"cpg": {"max_frequency": 30.0}}
-    assert meta["obs_size"] == "10" and meta["action_size"] == "6"
+    assert meta["obs_size"] == "10" and meta["action_size"] == "4"
     reference = eval_json(tmp_path / "sb3.json", run_dir, "--episodes", "1", "--max-steps", "5")
     via_onnx = eval_json(tmp_path / "onnx.json", "--onnx", out, "--episodes", "1", "--max-steps", "5")
     assert via_onnx["episodes"][0]["return"] == pytest.approx(reference["episodes"][0]["return"], abs=1e-5)
