@@ -38,6 +38,14 @@ arguments and the same per-step arithmetic:
   (:data:`snake_env.agents.search.BOXES`), so the policy and the baseline
   choose from the same gaits.
 
+* ``serpenoid_residual`` (:class:`SerpenoidResidualAction`): residual RL
+  (Silver et al. 2018; Johannink et al. 2019) on the searched serpenoid of
+  ``configs/serpenoid.yaml``: the env action is
+  ``clip(serpenoid(obs, t) + scale * action, -1, 1)``, so the zero action is the
+  baseline gait and the policy learns a state-feedback correction of it;
+  ``sin(w t), cos(w t)`` of the gait's clock are appended to the observation.
+  A policy trained this way starts at the baseline: report it as such.
+
 The train config selects them with the ``env_wrapper`` key (after RL Zoo's
 key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
 
@@ -453,10 +461,115 @@ class CPGActionVector(VectorWrapper):
         return _with_phase(obs, self._phase), reward, terminated, truncated, info
 
 
+def _residual_settings(env, scale, gait, num_envs: int):
+    """(scale, SerpenoidController of the gait, its frequency) for the residual wrappers."""
+    from snake_env.agents.search import load_params
+    from snake_env.agents.serpenoid import SerpenoidController
+
+    scale = _number("scale", scale, "fraction of max_torque", strict=True)
+    if scale > 2.0:
+        raise ValueError(f"scale must be in (0, 2] (fraction of max_torque), got {scale!r}")
+    if gait is None:
+        spec = getattr(env, "spec", None) or getattr(env.unwrapped, "spec", None)
+        gait = getattr(spec, "id", None)
+        if gait is None:
+            raise ValueError("serpenoid_residual needs gait=<env id of a configs/serpenoid.yaml entry>")
+    params, _ = load_params(gait)
+    g = _geometry(env)
+    controller = SerpenoidController(params, n_links=g["n_links"], max_torque=g["max_torque"], dt=g["dt"],
+                                     num_envs=num_envs,
+                                     include_position=g["phi"].start == 2)
+    return scale, controller, np.array([params.frequency])
+
+
+class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Action = correction (fraction ``scale`` of max_torque per unit) added to the searched
+    serpenoid gait's action; observation + ``sin(w t), cos(w t)`` of the gait's clock.
+
+    Args:
+        scale: torque of a unit action, as a fraction of max_torque, in (0, 2]; default 0.3.
+        gait: env id of the ``configs/serpenoid.yaml`` entry (default: this env's id).
+    """
+
+    def __init__(self, env: gym.Env, scale: float = 0.3, gait: str | None = None):
+        gym.utils.RecordConstructorArgs.__init__(self, scale=scale, gait=gait)
+        super().__init__(env)
+        self.scale, self.controller, self.omega = _residual_settings(env, scale, gait, 1)
+        self.observation_space = _extend_box(env.observation_space, 2)
+        self._obs = None
+
+    def _augment(self, obs):
+        return np.concatenate([obs, _phase_features(self.controller.time[0], self.omega).astype(obs.dtype)])
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.controller.reset()
+        self._obs = obs
+        return self._augment(obs), info
+
+    def step(self, action):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        base = self.controller.act(self._obs)  # advances the gait's clock by dt
+        correction = self.scale * np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        obs, reward, terminated, truncated, info = self.env.step(
+            np.clip(base + correction, -1.0, 1.0).astype(np.float32))
+        self._obs = obs
+        return self._augment(obs), reward, terminated, truncated, info
+
+
+class SerpenoidResidualActionVector(VectorWrapper):
+    """:class:`SerpenoidResidualAction` for a batched vector env: one gait clock per sub-env,
+    restarted with the sub-env's (auto)reset."""
+
+    def __init__(self, env, scale: float = 0.3, gait: str | None = None):
+        super().__init__(env)
+        self.scale, self.controller, self.omega = _residual_settings(env, scale, gait, self.num_envs)
+        self.single_observation_space = _extend_box(env.single_observation_space, 2)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._obs = None
+        self._pending_reset = np.zeros(self.num_envs, bool)
+
+    def _augment(self, obs):
+        return np.concatenate([obs, _phase_features(self.controller.time, self.omega).astype(obs.dtype)], axis=-1)
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        mask = (options or {}).get("reset_mask")
+        self.controller.reset(mask)
+        self._pending_reset[slice(None) if mask is None else np.asarray(mask, dtype=bool)] = False
+        self._obs = obs
+        return self._augment(obs), info
+
+    def step(self, actions):
+        if self._obs is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        base = self.controller.act(self._obs)
+        correction = self.scale * np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
+        obs, reward, terminated, truncated, info = self.env.step(
+            np.clip(base + correction, -1.0, 1.0).astype(np.float32))
+        self._obs = obs
+        done = np.asarray(terminated | truncated)
+        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+        if mode == AutoresetMode.NEXT_STEP:
+            self.controller.reset(self._pending_reset)  # reset by this call
+            self._pending_reset = done.copy()
+        elif mode == AutoresetMode.SAME_STEP and done.any():
+            if "final_obs" in info:
+                final = info["final_obs"].copy()
+                for i in np.flatnonzero(done):
+                    phase = _phase_features(self.controller.time[i], self.omega)
+                    final[i] = np.concatenate([np.asarray(final[i]), phase.astype(final[i].dtype)])
+                info = {**info, "final_obs": final}
+            self.controller.reset(done)
+        return self._augment(obs), reward, terminated, truncated, info
+
+
 WRAPPERS = {
     "phase_observation": (PhaseObservation, PhaseObservationVector),
     "joint_target": (JointTargetAction, JointTargetActionVector),
     "cpg": (CPGAction, CPGActionVector),
+    "serpenoid_residual": (SerpenoidResidualAction, SerpenoidResidualActionVector),
 }
 
 

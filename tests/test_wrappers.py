@@ -14,7 +14,8 @@ import snake_env  # noqa: F401
 from snake_env.agents.search import load_params
 from snake_env.agents.serpenoid import SerpenoidController
 from snake_env.wrappers import (CPGAction, CPGActionVector, JointTargetAction, JointTargetActionVector,
-                                PhaseObservation, PhaseObservationVector, parse_env_wrapper, wrap_env, wrap_vector_env)
+                                PhaseObservation, PhaseObservationVector, SerpenoidResidualAction,
+                                SerpenoidResidualActionVector, parse_env_wrapper, wrap_env, wrap_vector_env)
 
 ENV = "snake_env/Snake3-v1"
 
@@ -125,7 +126,8 @@ def test_phase_clock_runs_with_env_time_and_restarts_on_autoreset():
 
 
 @pytest.mark.parametrize("spec, message", [
-    ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'joint_target', 'phase_observation'], got 'joint_targets'"),
+    ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'joint_target', 'phase_observation', 'serpenoid_residual'], "
+     "got 'joint_targets'"),
     ("torque_mode", "env_wrapper name must be one of"),
     ({"joint_target": {"kp": -1.0}}, "kp must be a finite number >= 0"),
     ({"joint_target": {"gain": 1.0}}, "env_wrapper 'joint_target': "),
@@ -135,6 +137,9 @@ def test_phase_clock_runs_with_env_time_and_restarts_on_autoreset():
     ({"cpg": {"max_frequency": 0.0}}, "max_frequency must be a finite number > 0.0 (rad/s), got 0.0"),
     ({"cpg": {"kp": 0.0, "kd": 0.0}}, "cpg needs kp > 0 or kd > 0"),
     ({"cpg": {"frequency": 5.0}}, "env_wrapper 'cpg': "),
+    ({"serpenoid_residual": {"scale": 0.0}}, "scale must be a finite number > 0.0"),
+    ({"serpenoid_residual": {"scale": 3.0}}, "scale must be in (0, 2]"),
+    ({"serpenoid_residual": {"gait": "snake_env/Snake99-v1"}}, "no serpenoid gait for env 'snake_env/Snake99-v1'"),
 ])
 def test_bad_wrapper_specs_are_rejected_with_one_line(spec, message):
     with pytest.raises(ValueError) as info:
@@ -215,3 +220,50 @@ def test_cpg_wrapped_env_passes_gymnasiums_env_checker():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # "wrapped env" and unbounded-Box advice
         check_env(CPGAction(gym.make("snake_env/Snake5-v1")), skip_render_check=True)
+
+
+def test_serpenoid_residual_with_zero_action_is_the_searched_gait_and_a_correction_adds_torque():
+    env_id = "snake_env/Snake12-v1"
+    params, _ = load_params(env_id)
+    residual = SerpenoidResidualAction(gym.make(env_id), scale=0.25)
+    plain = gym.make(env_id)
+    controller = SerpenoidController(params, n_links=12, max_torque=1.0, dt=0.04)
+    obs, _ = residual.reset(seed=1)
+    plain_obs, _ = plain.reset(seed=1)
+    assert obs.shape == (plain_obs.shape[0] + 2,)
+    for k in range(60):
+        np.testing.assert_array_equal(obs[:-2], plain_obs)
+        np.testing.assert_allclose(obs[-2:], [math.sin(params.frequency * 0.04 * k),
+                                              math.cos(params.frequency * 0.04 * k)], atol=1e-9)
+        obs, _, _, _, info = residual.step(np.zeros(11, np.float32))
+        plain_obs, _, _, _, plain_info = plain.step(controller.act(plain_obs))
+        assert info["x_velocity"] == plain_info["x_velocity"]
+    # a unit correction adds scale * max_torque before the clip to [-1, 1]
+    base = SerpenoidController(params, n_links=12, max_torque=1.0, dt=0.04)
+    base.time[:] = residual.controller.time
+    expected = np.clip(base.act(residual._obs).astype(np.float64) + 0.25, -1.0, 1.0).astype(np.float32)
+    recorder = {}
+    original_step = residual.env.step
+    residual.env.step = lambda action: (recorder.setdefault("action", action), original_step(action))[1]
+    residual.step(np.ones(11, np.float32))
+    np.testing.assert_allclose(recorder["action"], expected, atol=1e-6)
+
+
+def test_serpenoid_residual_vector_wrapper_matches_the_single_one():
+    env_id = "snake_env/Snake5-v1"
+    single = SerpenoidResidualAction(gym.make(env_id, max_episode_steps=6))
+    vector = SerpenoidResidualActionVector(gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
+                                                        max_episode_steps=6))
+    assert vector.single_observation_space == single.observation_space
+    obs, _ = single.reset(seed=5)
+    vobs, _ = vector.reset(seed=5)
+    np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
+    rng = np.random.default_rng(3)
+    for k in range(8):
+        action = rng.uniform(-1, 1, 4).astype(np.float32)
+        obs, *_ = single.step(action)
+        vobs, *_ = vector.step(np.stack([action, action]))
+        if k < 6:
+            np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
+        if k == 6:  # next-step autoreset: the clock restarted with the episode
+            np.testing.assert_allclose(vobs[:, -2:], [[0.0, 1.0], [0.0, 1.0]], atol=1e-12)
