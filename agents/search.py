@@ -251,6 +251,21 @@ def load_params(env_id: str, path=DEFAULT_OUTPUT) -> tuple[SerpenoidParams, dict
     return SerpenoidParams.from_dict(entry["params"]), dict(entry.get("env_kwargs") or {})
 
 
+def gait_for_links(n_links: int, path=DEFAULT_OUTPUT) -> tuple[SerpenoidParams, float | None]:
+    """(gait, its straight-line speed (m/s) or None) of the locomotion id ``snake_env/Snake{n}-v*``
+    with this n (newest version) in ``path``: the gait the task baselines steer."""
+    import re
+
+    gaits = load_gaits(path)
+    pattern = re.compile(rf"^snake_env/Snake{n_links}-v(\d+)$")
+    matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
+    if not matches:
+        raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (run: python -m "
+                         f"snake_env.agents.search --env snake_env/Snake{n_links}-v1)")
+    entry = gaits[matches[-1][1]]
+    return SerpenoidParams.from_dict(entry["params"]), (entry.get("search") or {}).get("mean_forward_velocity")
+
+
 def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAULT_OUTPUT, note: str = "") -> None:
     """Merge the result into the YAML under ``env_id`` (atomic write)."""
     path = Path(path)

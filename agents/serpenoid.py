@@ -142,6 +142,11 @@ class SerpenoidController:
         self._p = table
         self.time = np.zeros(num_envs)
 
+    @property
+    def phase(self) -> np.ndarray:
+        """omega t of each env's gait (rad), t the clock (s)."""
+        return self._p["frequency"] * self.time
+
     def reset(self, mask=None) -> None:
         """Restart the clock of every env (or of those where ``mask`` is True)."""
         if mask is None:

@@ -39,12 +39,14 @@ arguments and the same per-step arithmetic:
   choose from the same gaits.
 
 * ``serpenoid_residual`` (:class:`SerpenoidResidualAction`): residual RL
-  (Silver et al. 2018; Johannink et al. 2019) on the searched serpenoid of
-  ``configs/serpenoid.yaml``: the env action is
-  ``clip(serpenoid(obs, t) + scale * action, -1, 1)``, so the zero action is the
-  baseline gait and the policy learns a state-feedback correction of it;
-  ``sin(w t), cos(w t)`` of the gait's clock are appended to the observation.
-  A policy trained this way starts at the baseline: report it as such.
+  (Silver et al. 2018; Johannink et al. 2019) on the task's baseline
+  controller, the one ``snake-eval --baseline`` runs (forward: the searched
+  serpenoid of ``configs/serpenoid.yaml``; path: line-of-sight guidance;
+  command: the steered serpenoid): the env action is
+  ``clip(baseline(obs) + scale * action, -1, 1)``, so the zero action is the
+  baseline and the policy learns a state-feedback correction of it; sin and
+  cos of the baseline gait's phase are appended to the observation. A policy
+  trained this way starts at the baseline: report it as such.
 
 The train config selects them with the ``env_wrapper`` key (after RL Zoo's
 key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
@@ -462,44 +464,60 @@ class CPGActionVector(VectorWrapper):
 
 
 def _residual_settings(env, scale, gait, num_envs: int):
-    """(scale, SerpenoidController of the gait, its frequency) for the residual wrappers."""
-    from snake_env.agents.search import load_params
+    """(scale, baseline controller) for the residual wrappers: the task's baseline of
+    ``snake-eval --baseline`` (forward: the searched serpenoid of ``gait``, default this
+    env's id; path: line-of-sight guidance; command: the steered serpenoid)."""
+    from snake_env.agents.path_following import LineOfSightController, SteeringController
+    from snake_env.agents.search import gait_for_links, load_params
     from snake_env.agents.serpenoid import SerpenoidController
 
     scale = _number("scale", scale, "fraction of max_torque", strict=True)
     if scale > 2.0:
         raise ValueError(f"scale must be in (0, 2] (fraction of max_torque), got {scale!r}")
-    if gait is None:
-        spec = getattr(env, "spec", None) or getattr(env.unwrapped, "spec", None)
-        gait = getattr(spec, "id", None)
-        if gait is None:
-            raise ValueError("serpenoid_residual needs gait=<env id of a configs/serpenoid.yaml entry>")
-    params, _ = load_params(gait)
     g = _geometry(env)
-    controller = SerpenoidController(params, n_links=g["n_links"], max_torque=g["max_torque"], dt=g["dt"],
-                                     num_envs=num_envs,
-                                     include_position=g["phi"].start == 2)
-    return scale, controller, np.array([params.frequency])
+    geometry = dict(n_links=g["n_links"], max_torque=g["max_torque"], dt=g["dt"], num_envs=num_envs,
+                    include_position=g["phi"].start == 2)
+    task = getattr(getattr(env.unwrapped, "task", None), "name", "forward")
+    if task == "forward":
+        if gait is None:
+            spec = getattr(env, "spec", None) or getattr(env.unwrapped, "spec", None)
+            gait = getattr(spec, "id", None)
+            if gait is None:
+                raise ValueError("serpenoid_residual needs gait=<env id of a configs/serpenoid.yaml entry>")
+        return scale, SerpenoidController(load_params(gait)[0], **geometry)
+    baselines = {"path": LineOfSightController, "command": SteeringController}
+    if task not in baselines:
+        raise ValueError(f"serpenoid_residual needs a task with a baseline controller, one of "
+                         f"{['forward', *baselines]}; got task {task!r}")
+    if gait is not None:
+        raise ValueError(f"gait applies to the forward task; the {task} baseline steers the gait of "
+                         f"snake_env/Snake{g['n_links']}-v*, got gait={gait!r}")
+    params, speed = gait_for_links(g["n_links"])
+    if speed is None:
+        raise ValueError(f"the serpenoid gait for n_links={g['n_links']} has no search.mean_forward_velocity")
+    return scale, baselines[task](params, gait_speed=float(speed), **geometry)
 
 
 class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """Action = correction (fraction ``scale`` of max_torque per unit) added to the searched
-    serpenoid gait's action; observation + ``sin(w t), cos(w t)`` of the gait's clock.
+    """Action = correction (fraction ``scale`` of max_torque per unit) added to the task's
+    baseline controller's action; observation + sin, cos of the baseline gait's phase.
 
     Args:
         scale: torque of a unit action, as a fraction of max_torque, in (0, 2]; default 0.3.
-        gait: env id of the ``configs/serpenoid.yaml`` entry (default: this env's id).
+        gait: forward task only: env id of the ``configs/serpenoid.yaml`` entry (default:
+            this env's id). The path and command baselines steer the gait of
+            ``snake_env/Snake{n}-v*`` with this env's n.
     """
 
     def __init__(self, env: gym.Env, scale: float = 0.3, gait: str | None = None):
         gym.utils.RecordConstructorArgs.__init__(self, scale=scale, gait=gait)
         super().__init__(env)
-        self.scale, self.controller, self.omega = _residual_settings(env, scale, gait, 1)
+        self.scale, self.controller = _residual_settings(env, scale, gait, 1)
         self.observation_space = _extend_box(env.observation_space, 2)
         self._obs = None
 
     def _augment(self, obs):
-        return np.concatenate([obs, _phase_features(self.controller.time[0], self.omega).astype(obs.dtype)])
+        return _with_phase(obs, self.controller.phase[0])
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
@@ -524,14 +542,14 @@ class SerpenoidResidualActionVector(VectorWrapper):
 
     def __init__(self, env, scale: float = 0.3, gait: str | None = None):
         super().__init__(env)
-        self.scale, self.controller, self.omega = _residual_settings(env, scale, gait, self.num_envs)
+        self.scale, self.controller = _residual_settings(env, scale, gait, self.num_envs)
         self.single_observation_space = _extend_box(env.single_observation_space, 2)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._obs = None
         self._pending_reset = np.zeros(self.num_envs, bool)
 
     def _augment(self, obs):
-        return np.concatenate([obs, _phase_features(self.controller.time, self.omega).astype(obs.dtype)], axis=-1)
+        return _with_phase(obs, self.controller.phase)
 
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -558,8 +576,7 @@ class SerpenoidResidualActionVector(VectorWrapper):
             if "final_obs" in info:
                 final = info["final_obs"].copy()
                 for i in np.flatnonzero(done):
-                    phase = _phase_features(self.controller.time[i], self.omega)
-                    final[i] = np.concatenate([np.asarray(final[i]), phase.astype(final[i].dtype)])
+                    final[i] = _with_phase(np.asarray(final[i]), self.controller.phase[i])
                 info = {**info, "final_obs": final}
             self.controller.reset(done)
         return self._augment(obs), reward, terminated, truncated, info

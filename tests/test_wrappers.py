@@ -267,3 +267,29 @@ def test_serpenoid_residual_vector_wrapper_matches_the_single_one():
             np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
         if k == 6:  # next-step autoreset: the clock restarted with the episode
             np.testing.assert_allclose(vobs[:, -2:], [[0.0, 1.0], [0.0, 1.0]], atol=1e-12)
+
+
+@pytest.mark.parametrize("env_id, controller_name", [("snake_env/SnakePath5-v0", "LineOfSightController"),
+                                                     ("snake_env/SnakeCommand5-v0", "SteeringController")])
+def test_serpenoid_residual_on_a_task_starts_at_the_tasks_baseline(env_id, controller_name):
+    """Zero action = the baseline of snake-eval --baseline (line of sight, steering) step for step."""
+    from snake_env.agents import path_following
+    from snake_env.agents.search import gait_for_links
+
+    params, speed = gait_for_links(5)
+    baseline = getattr(path_following, controller_name)(params, 5, 1.0, 0.04, gait_speed=float(speed))
+    residual = SerpenoidResidualAction(gym.make(env_id))
+    assert type(residual.controller).__name__ == controller_name
+    plain = gym.make(env_id)
+    obs, _ = residual.reset(seed=2)
+    plain_obs, _ = plain.reset(seed=2)
+    for _ in range(40):
+        np.testing.assert_array_equal(obs[:-2], plain_obs)
+        obs, reward, *_ = residual.step(np.zeros(4, np.float32))
+        plain_obs, plain_reward, *_ = plain.step(baseline.act(plain_obs))
+        assert reward == plain_reward
+
+
+def test_serpenoid_residual_refuses_a_task_without_a_baseline():
+    with pytest.raises(ValueError, match="needs a task with a baseline controller"):
+        SerpenoidResidualAction(gym.make("snake_env/SnakeReach5-v0"))

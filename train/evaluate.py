@@ -329,21 +329,14 @@ def policy_actor(args):
 def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
     """(gait, its straight-line speed (m/s) or None, n_links, max_torque, dt, include_position) for a task id:
     the searched gait of the locomotion id ``snake_env/Snake{n}-v*`` with the same n (newest version)."""
-    import re
-
-    from snake_env.agents.search import env_geometry, load_gaits
-    from snake_env.agents.serpenoid import SerpenoidParams
+    from snake_env.agents.search import env_geometry, gait_for_links
 
     n_links, max_torque, dt, include_position = env_geometry(env_id, dict(env_kwargs or {}))
-    gaits = load_gaits(path)
-    pattern = re.compile(rf"^snake_env/Snake{n_links}-v(\d+)$")
-    matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
-    if not matches:
-        raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (needed by the baseline on {env_id}; "
-                         f"run: python -m snake_env.agents.search --env snake_env/Snake{n_links}-v1)")
-    entry = gaits[matches[-1][1]]
-    speed = (entry.get("search") or {}).get("mean_forward_velocity")
-    return (SerpenoidParams.from_dict(entry["params"]), speed, n_links, max_torque, dt, include_position)
+    try:
+        params, speed = gait_for_links(n_links, path)
+    except ValueError as exc:
+        raise ValueError(f"{exc} (needed by the baseline on {env_id})") from None
+    return params, speed, n_links, max_torque, dt, include_position
 
 
 def onnx_actor(args):
