@@ -3,7 +3,7 @@
 Importing the package registers the environments (this module does nothing
 else): ``snake_env/Snake-v1`` (kwarg ``n_links``, default 5) and
 ``snake_env/Snake{n}-v1`` for n in 3, 5, 8, 12, 20, 30 (running forward), and
-``-v0`` of the tasks ``SnakeCommand``, ``SnakeReach`` and ``SnakePath``
+the tasks ``SnakeCommand{n}-v0``, ``SnakeReach{n}-v0`` and ``SnakePath{n}-v1``
 (see :mod:`snake_env.registration`).
 """
 

@@ -23,7 +23,7 @@ TASK_IDS = (
     ("Snake", "forward", 1, 1000, False),
     ("SnakeCommand", "command", 0, 1000, False),
     ("SnakeReach", "reach", 0, 400, True),
-    ("SnakePath", "path", 0, 1000, False),
+    ("SnakePath", "path", 1, 1000, False),
 )
 MAX_EPISODE_STEPS = 1000  # of the forward task; each task class holds its own
 ENTRY_POINT = "snake_env.envs.snake:SnakeEnv"

@@ -269,7 +269,7 @@ def test_serpenoid_residual_vector_wrapper_matches_the_single_one():
             np.testing.assert_allclose(vobs[:, -2:], [[0.0, 1.0], [0.0, 1.0]], atol=1e-12)
 
 
-@pytest.mark.parametrize("env_id, controller_name", [("snake_env/SnakePath5-v0", "LineOfSightController"),
+@pytest.mark.parametrize("env_id, controller_name", [("snake_env/SnakePath5-v1", "LineOfSightController"),
                                                      ("snake_env/SnakeCommand5-v0", "SteeringController")])
 def test_serpenoid_residual_on_a_task_starts_at_the_tasks_baseline(env_id, controller_name):
     """Zero action = the baseline of snake-eval --baseline (line of sight, steering) step for step."""

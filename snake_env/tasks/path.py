@@ -1,4 +1,4 @@
-"""Follow a path: a line, a circle or a sine (``snake_env/SnakePath{n}-v0``)."""
+"""Follow a path: a line, a circle or a sine (``snake_env/SnakePath{n}-v1``)."""
 
 from __future__ import annotations
 
@@ -8,15 +8,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from snake_env.envs.config import setting
+from snake_env.envs.physics import AUX_VX, AUX_VY
 
 from .base import DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, box_with_extras, mean_heading, squared_norm
 
 PATH_TYPES = ("line", "circle", "sine")
 _NEWTON_STEPS = 4  # projection onto the sine: Newton steps from the previous foot point
-
-
-def _wrap(angle):
-    return (angle + np.pi) % (2.0 * np.pi) - np.pi
 
 
 @dataclass(frozen=True)
@@ -34,7 +31,8 @@ class PathTask(Task):
     - "sine": y = d + `amplitude` sin(2 pi x / `wavelength`), along +x.
     The cross-track error e (m) is the signed distance from the whole CM
     to its closest path point, positive to the left of the direction of
-    travel; the along-track progress s (m) is the arc length of that point.
+    travel; the path speed is the CM's velocity along the path's tangent
+    at that point (m/s).
     The heading is the mean link angle theta_bar (Liljebäck et al. 2011).
 
     ## Action Space
@@ -52,9 +50,13 @@ class PathTask(Task):
     | 2n+5 | curvature of the path at the closest point (left turn > 0) | 1/m |
 
     ## Rewards
-    reward = `progress_weight` * ds/dt - `cross_track_weight` * |e| - `ctrl_cost_weight` * ||a||^2,
-    ds/dt the along-track speed over the step (m/s). `info`: `reward_progress`,
-    `reward_cross_track`, `reward_ctrl`, `cross_track_error` (e, m), `path_speed` (ds/dt, m/s).
+    reward = `progress_weight` * v_t - `cross_track_weight` * |e| - `ctrl_cost_weight` * ||a||^2,
+    v_t = v . t the CM velocity over the step (m/s) along the unit tangent t of
+    the path at the closest point after the step. On a line v_t is the
+    along-track speed ds/dt; off a curved path it is bounded by the snake's
+    speed, where ds/dt = v_t / (1 - curvature e) grows without bound towards
+    a circle's centre. `info`: `reward_progress`, `reward_cross_track`,
+    `reward_ctrl`, `cross_track_error` (e, m), `path_speed` (v_t, m/s).
 
     ## Starting State
     As `Snake{n}-v1`; the offset sign is drawn from the env's generator.
@@ -78,6 +80,10 @@ class PathTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v1: the progress term is the CM velocity along the path tangent (was the
+      rate of the closest point's arc length, ds/dt: near a circle's centre
+      the closest point swings round the circle for small motions, and a PPO
+      policy learned to circle there for 10 m/s of "progress" 1.2 m off the path).
     * v0: initial version.
     """
 
@@ -135,16 +141,6 @@ class PathTask(Task):
         curvature = f2 / (1.0 + f1 * f1) ** 1.5
         return xf, error, tangent, curvature
 
-    def arc_length_change(self, foot_prev, foot):
-        """Along-track distance between two foot parameters (m)."""
-        if self.path_type == "line":
-            return foot - foot_prev
-        if self.path_type == "circle":
-            return self.radius * _wrap(foot - foot_prev)
-        k = 2.0 * np.pi / self.wavelength
-        slope = self.amplitude * k * np.cos(k * 0.5 * (foot + foot_prev))  # midpoint rule
-        return (foot - foot_prev) * np.sqrt(1.0 + slope * slope)
-
     # ------------------------------------------------------------------ task hooks
     def reset(self, config, state, rows, rng, q, aux):
         from snake_env.envs.physics import AUX_X, AUX_Y
@@ -163,9 +159,8 @@ class PathTask(Task):
         return np.concatenate([obs, extras], axis=1)
 
     def evaluate(self, config, ctx: StepContext, state):
-        foot_prev = state["foot"].copy()
-        foot, error, tangent, curvature = self.project(ctx.cm, state["offset"], foot_prev)
-        path_speed = self.arc_length_change(foot_prev, foot) / ctx.dt
+        foot, error, tangent, curvature = self.project(ctx.cm, state["offset"], state["foot"])
+        path_speed = ctx.aux[:, AUX_VX] * np.cos(tangent) + ctx.aux[:, AUX_VY] * np.sin(tangent)
         state["foot"][:], state["error"][:], state["tangent"][:], state["curvature"][:] = (
             foot, error, tangent, curvature)
         reward_progress = self.progress_weight * path_speed

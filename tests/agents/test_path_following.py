@@ -36,7 +36,7 @@ def test_los_steers_towards_the_path():
 def _mean_cross_track(controller_factory, path_type, seeds=(0, 1, 2), steps=500):
     errors = []
     for seed in seeds:
-        env = gym.make("snake_env/SnakePath5-v0", path_type=path_type)
+        env = gym.make("snake_env/SnakePath5-v1", path_type=path_type)
         obs, _ = env.reset(seed=seed)
         controller = controller_factory()
         for k in range(steps):

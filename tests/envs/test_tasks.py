@@ -1,6 +1,7 @@
 """The task ids (SnakeCommand, SnakeReach, SnakePath): checkers, determinism,
 vector env == single envs, argument checks, GoalEnv compute_reward, registration."""
 
+import math
 import warnings
 
 import gymnasium as gym
@@ -19,9 +20,9 @@ CASES = [
     ("snake_env/SnakeCommand5-v0", {}),
     ("snake_env/SnakeReach5-v0", {}),
     ("snake_env/SnakeReach3-v0", {"reward_type": "dense"}),
-    ("snake_env/SnakePath5-v0", {"path_type": "line"}),
-    ("snake_env/SnakePath3-v0", {"path_type": "circle"}),
-    ("snake_env/SnakePath5-v0", {"path_type": "sine"}),
+    ("snake_env/SnakePath5-v1", {"path_type": "line"}),
+    ("snake_env/SnakePath3-v1", {"path_type": "circle"}),
+    ("snake_env/SnakePath5-v1", {"path_type": "sine"}),
 ]
 IDS = [f"{env_id.split('/')[1]}-{'-'.join(map(str, kw.values())) or 'default'}" for env_id, kw in CASES]
 
@@ -48,7 +49,7 @@ def test_every_family_is_registered_for_every_n_with_its_task_settings():
             assert spec.max_episode_steps == steps
             assert spec.vector_entry_point == "snake_env.envs.vector:SnakeVectorEnv"
         assert ids[f"snake_env/{prefix}-v{version}"] == {"task": task}
-    env = gym.make("snake_env/SnakePath-v0", n_links=7)
+    env = gym.make("snake_env/SnakePath-v1", n_links=7)
     assert env.action_space.shape == (6,) and env.observation_space.shape == (20,)
 
 
@@ -134,9 +135,9 @@ def test_vector_env_of_one_reproduces_the_single_env_with_the_same_seed(env_id, 
     ("snake_env/SnakeReach5-v0", {"distance_threshold": -0.1}, "distance_threshold"),
     ("snake_env/SnakeReach5-v0", {"goal_distance_range": (2.0, 1.0)}, "goal_distance_range"),
     ("snake_env/SnakeReach5-v0", {"terminate_on_success": "yes"}, "terminate_on_success"),
-    ("snake_env/SnakePath5-v0", {"path_type": "spiral"}, "path_type"),
-    ("snake_env/SnakePath5-v0", {"radius": 0.0}, "radius"),
-    ("snake_env/SnakePath5-v0", {"forward_reward_weight": 1.0}, "forward_reward_weight"),
+    ("snake_env/SnakePath5-v1", {"path_type": "spiral"}, "path_type"),
+    ("snake_env/SnakePath5-v1", {"radius": 0.0}, "radius"),
+    ("snake_env/SnakePath5-v1", {"forward_reward_weight": 1.0}, "forward_reward_weight"),
     ("snake_env/SnakeCommand5-v0", {"speed_range": (0.1,)}, "speed_range"),
     ("snake_env/SnakeCommand5-v0", {"command_period": float("nan")}, "command_period"),
     ("snake_env/SnakeCommand5-v0", {"max_torque": -1.0}, "max_torque"),
@@ -210,7 +211,7 @@ def test_command_is_resampled_every_period_within_its_ranges():
 
 @pytest.mark.parametrize("path_type", ["line", "circle", "sine"])
 def test_cross_track_error_is_the_signed_distance_to_the_closest_path_point(path_type):
-    env = gym.make("snake_env/SnakePath5-v0", path_type=path_type, initial_offset=0.4)
+    env = gym.make("snake_env/SnakePath5-v1", path_type=path_type, initial_offset=0.4)
     task = env.unwrapped.task
     signs = set()
     rng = np.random.default_rng(0)
@@ -238,7 +239,7 @@ def test_cross_track_error_is_the_signed_distance_to_the_closest_path_point(path
 
 
 def test_path_progress_along_a_line_is_the_x_speed():
-    env = gym.make("snake_env/SnakePath5-v0", path_type="line")
+    env = gym.make("snake_env/SnakePath5-v1", path_type="line")
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     for _ in range(20):
@@ -266,3 +267,22 @@ def test_compiled_squared_norm_has_the_bits_of_numpys_sum(length):
     task's rewards keep the bits they had when they were computed with np.sum (the fixture)."""
     a = np.random.default_rng(length).uniform(-1.0, 1.0, (3, length))
     assert np.array_equal(squared_norm(a), np.sum(np.square(a), axis=-1))
+
+
+def test_path_progress_is_bounded_by_the_cm_speed_even_at_a_circles_centre():
+    """v1: the progress term is the CM velocity along the path tangent, so it never exceeds
+    the CM's speed; v0's arc-length rate of the closest point did near the centre of a small
+    circle (a policy circled there for 10 m/s of progress)."""
+    env = gym.make("snake_env/SnakePath5-v1", path_type="circle", radius=0.1, initial_offset=0.0,
+                   max_cross_track_error=5.0)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    near_centre = 0
+    for _ in range(300):
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        speed = math.hypot(info["x_velocity"], info["y_velocity"])
+        assert abs(info["path_speed"]) <= speed + 1e-12
+        near_centre += info["cross_track_error"] > 0.02  # inside, where ds/dt = v_t / (1 - e / r) > v_t
+        if terminated or truncated:
+            env.reset()
+    assert near_centre > 0  # the case that broke v0 was exercised

@@ -55,7 +55,7 @@ def test_ppo_picks_multi_input_policy_for_the_dict_observation(tmp_path):
 
 
 @pytest.mark.parametrize("env_id, baseline, keys", [
-    ("snake_env/SnakePath5-v0", "los", ("mean_cross_track_error", "mean_path_speed")),
+    ("snake_env/SnakePath5-v1", "los", ("mean_cross_track_error", "mean_path_speed")),
     ("snake_env/SnakeCommand5-v0", "steering", ("mean_speed_error", "mean_yaw_rate_error")),
     ("snake_env/Snake5-v1", "serpenoid", ()),
 ])
