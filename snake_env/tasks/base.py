@@ -59,10 +59,6 @@ class StepContext:
     def cm(self) -> np.ndarray:
         return self.aux[:, [AUX_X, AUX_Y]]
 
-    @property
-    def failed(self) -> np.ndarray:
-        return self.aux[:, AUX_FAILED] != 0.0
-
 
 def mean_heading(q: np.ndarray, n_links: int) -> np.ndarray:
     """Mean link angle theta_bar = (1/n) sum theta_k (rad), the snake's heading
