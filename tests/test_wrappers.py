@@ -82,20 +82,28 @@ def test_joint_target_tracks_an_admissible_trajectory_within_the_torque_limit(kp
     assert tracked < 0.5 * untracked, (tracked, untracked)
 
 
+def side_by_side(single, vector, seed: int, n_steps: int, rng_seed: int):
+    """Reset a wrapped single env and a wrapped vector env with ``seed``, then step the single env
+    and every vector row with the same random actions; yields (k, single obs, vector obs), k = -1
+    after the reset and k = 0, 1, ... after each step."""
+    assert vector.single_observation_space == single.observation_space
+    obs, _ = single.reset(seed=seed)
+    vobs, _ = vector.reset(seed=seed)
+    yield -1, obs, vobs
+    rng = np.random.default_rng(rng_seed)
+    for k in range(n_steps):
+        action = rng.uniform(-1, 1, single.action_space.shape).astype(np.float32)
+        obs, *_ = single.step(action)
+        vobs, *_ = vector.step(np.tile(action, (vector.num_envs, 1)))
+        yield k, obs, vobs
+
+
 def test_vector_wrappers_match_the_single_env_wrappers():
     spec = {"joint_target": {"kp": 2.0, "kd": 0.1}, "phase_observation": {"frequencies": [30.0, 5.0]}}
     single = wrap_env(gym.make(ENV), spec)
     vector = wrap_vector_env(gym.make_vec(ENV, num_envs=1, vectorization_mode="vector_entry_point"), spec)
     assert single.observation_space.shape == (2 + 2 + 2 + 2 + 4,)
-    assert vector.single_observation_space == single.observation_space
-    obs, _ = single.reset(seed=7)
-    vobs, _ = vector.reset(seed=7)
-    np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
-    rng = np.random.default_rng(1)
-    for _ in range(20):
-        action = rng.uniform(-1, 1, 2).astype(np.float32)
-        obs, *_ = single.step(action)
-        vobs, *_ = vector.step(action[None])
+    for _, obs, vobs in side_by_side(single, vector, seed=7, n_steps=20, rng_seed=1):
         np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
 
 
@@ -203,15 +211,7 @@ def test_clocked_action_wrappers_batch_and_restart_their_clock_on_autoreset(sing
     vector = vector_cls(gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
                                      max_episode_steps=6), **kwargs)
     assert vector.single_action_space == single.action_space
-    assert vector.single_observation_space == single.observation_space
-    obs, _ = single.reset(seed=5)
-    vobs, _ = vector.reset(seed=5)
-    np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
-    rng = np.random.default_rng(2)
-    for k in range(8):
-        action = rng.uniform(-1, 1, 4).astype(np.float32)
-        obs, *_ = single.step(action)
-        vobs, *_ = vector.step(np.stack([action, action]))
+    for k, obs, vobs in side_by_side(single, vector, seed=5, n_steps=8, rng_seed=2):
         if k < 6:  # the single env is truncated after 6 steps; the vector's 7th step resets both rows
             np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
         if k == 6:
