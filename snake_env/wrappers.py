@@ -42,11 +42,14 @@ arguments and the same per-step arithmetic:
   (Silver et al. 2018; Johannink et al. 2019) on the task's baseline
   controller, the one ``snake-eval --baseline`` runs (forward: the searched
   serpenoid of ``configs/serpenoid.yaml``; path: line-of-sight guidance;
-  command: the steered serpenoid): the env action is
+  command: the steered serpenoid; reach: goal seeking): the env action is
   ``clip(baseline(obs) + scale * action, -1, 1)``, so the zero action is the
   baseline and the policy learns a state-feedback correction of it; sin and
-  cos of the baseline gait's phase are appended to the observation. A policy
-  trained this way starts at the baseline: report it as such.
+  cos of the baseline gait's phase are appended to the observation (to the
+  ``observation`` entry of a Dict observation). A policy trained this way
+  starts at the baseline: report it as such. The baseline reads the goal, so
+  HER's relabelled goals would pair a correction with a baseline action it was
+  not added to: use it with on-policy algorithms on the reach task.
 
 The train config selects them with the ``env_wrapper`` key (after RL Zoo's
 key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
@@ -108,7 +111,10 @@ def _phase_features(time: np.ndarray, omega: np.ndarray) -> np.ndarray:
     return np.stack([np.sin(angle), np.cos(angle)], axis=-1).reshape(*angle.shape[:-1], 2 * omega.size)
 
 
-def _extend_box(box: spaces.Box, extra: int) -> spaces.Box:
+def _extend_box(box: spaces.Space, extra: int) -> spaces.Space:
+    """``box`` with ``extra`` entries in [-1, 1] appended (to the ``observation`` entry of a Dict space)."""
+    if isinstance(box, spaces.Dict):
+        return spaces.Dict({**box.spaces, "observation": _extend_box(box["observation"], extra)})
     low = np.concatenate([box.low, -np.ones(extra, box.dtype)])
     high = np.concatenate([box.high, np.ones(extra, box.dtype)])
     return spaces.Box(low, high, dtype=box.dtype)
@@ -365,8 +371,11 @@ class _CPGSettings:
         return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32), next_phase
 
 
-def _with_phase(obs: np.ndarray, phase) -> np.ndarray:
-    """obs with sin(phase), cos(phase) appended (last axis)."""
+def _with_phase(obs, phase):
+    """obs with sin(phase), cos(phase) appended (last axis; of the ``observation`` entry of a Dict observation)."""
+    if isinstance(obs, Mapping):
+        return {**obs, "observation": _with_phase(obs["observation"], phase)}
+    obs = np.asarray(obs)
     phase = np.asarray(phase, dtype=np.float64)
     extra = np.stack([np.sin(phase), np.cos(phase)], axis=-1).astype(obs.dtype)
     return np.concatenate([obs, extra], axis=-1)
@@ -457,7 +466,7 @@ class CPGActionVector(VectorWrapper):
             if "final_obs" in info:
                 final = info["final_obs"].copy()
                 for i in np.flatnonzero(done):
-                    final[i] = _with_phase(np.asarray(final[i]), self._phase[i])
+                    final[i] = _with_phase(final[i], self._phase[i])
                 info = {**info, "final_obs": final}
             self._phase[done] = 0.0
         return _with_phase(obs, self._phase), reward, terminated, truncated, info
@@ -466,8 +475,8 @@ class CPGActionVector(VectorWrapper):
 def _residual_settings(env, scale, gait, num_envs: int):
     """(scale, baseline controller) for the residual wrappers: the task's baseline of
     ``snake-eval --baseline`` (forward: the searched serpenoid of ``gait``, default this
-    env's id; path: line-of-sight guidance; command: the steered serpenoid)."""
-    from snake_env.agents.path_following import LineOfSightController, SteeringController
+    env's id; path: line-of-sight guidance; command: the steered serpenoid; reach: goal seeking)."""
+    from snake_env.agents.path_following import GoalSeekingController, LineOfSightController, SteeringController
     from snake_env.agents.search import gait_for_links, load_params
     from snake_env.agents.serpenoid import SerpenoidController
 
@@ -485,7 +494,7 @@ def _residual_settings(env, scale, gait, num_envs: int):
             if gait is None:
                 raise ValueError("serpenoid_residual needs gait=<env id of a configs/serpenoid.yaml entry>")
         return scale, SerpenoidController(load_params(gait)[0], **geometry)
-    baselines = {"path": LineOfSightController, "command": SteeringController}
+    baselines = {"path": LineOfSightController, "command": SteeringController, "reach": GoalSeekingController}
     if task not in baselines:
         raise ValueError(f"serpenoid_residual needs a task with a baseline controller, one of "
                          f"{['forward', *baselines]}; got task {task!r}")
@@ -576,7 +585,7 @@ class SerpenoidResidualActionVector(VectorWrapper):
             if "final_obs" in info:
                 final = info["final_obs"].copy()
                 for i in np.flatnonzero(done):
-                    final[i] = _with_phase(np.asarray(final[i]), self.controller.phase[i])
+                    final[i] = _with_phase(final[i], self.controller.phase[i])
                 info = {**info, "final_obs": final}
             self.controller.reset(done)
         return self._augment(obs), reward, terminated, truncated, info

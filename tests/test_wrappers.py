@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 import warnings
 
@@ -274,6 +275,51 @@ def test_serpenoid_residual_on_a_task_starts_at_the_tasks_baseline(env_id, contr
         assert reward == plain_reward
 
 
-def test_serpenoid_residual_refuses_a_task_without_a_baseline():
-    with pytest.raises(ValueError, match="needs a task with a baseline controller"):
-        SerpenoidResidualAction(gym.make("snake_env/SnakeReach5-v0"))
+def test_serpenoid_residual_on_the_reach_task_starts_at_goal_seeking_and_extends_the_dict_observation():
+    from snake_env.agents.path_following import GoalSeekingController
+    from snake_env.agents.search import gait_for_links
+
+    params, speed = gait_for_links(5)
+    baseline = GoalSeekingController(params, 5, 1.0, 0.04, gait_speed=float(speed))
+    residual = SerpenoidResidualAction(gym.make("snake_env/SnakeReach5-v0"))
+    plain = gym.make("snake_env/SnakeReach5-v0")
+    space = residual.observation_space
+    assert isinstance(space, gym.spaces.Dict) and space["observation"].shape == (14,)
+    assert space["desired_goal"] == plain.observation_space["desired_goal"]
+    obs, _ = residual.reset(seed=2)
+    plain_obs, _ = plain.reset(seed=2)
+    for _ in range(60):
+        assert space.contains(obs)
+        np.testing.assert_array_equal(obs["observation"][:-2], plain_obs["observation"])
+        np.testing.assert_array_equal(obs["desired_goal"], plain_obs["desired_goal"])
+        obs, reward, terminated, _, _ = residual.step(np.zeros(4, np.float32))
+        plain_obs, plain_reward, *_ = plain.step(baseline.act(plain_obs))
+        assert reward == plain_reward
+        if terminated:
+            break
+
+
+def test_serpenoid_residual_vector_on_the_reach_task_phases_the_final_dict_observation():
+    vector = SerpenoidResidualActionVector(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2,
+                                                        vectorization_mode="vector_entry_point",
+                                                        autoreset_mode=AutoresetMode.SAME_STEP,
+                                                        max_episode_steps=5))
+    vector.reset(seed=0)
+    for _ in range(4):
+        vector.step(np.zeros((2, 4), np.float32))
+    twin = copy.deepcopy(vector.controller)
+    twin.act(vector._obs)  # the phase after this step (the gait may run backwards)
+    phase = twin.phase
+    obs, _, _, truncated, info = vector.step(np.zeros((2, 4), np.float32))
+    assert truncated.all()
+    for i in range(2):
+        final = info["final_obs"][i]["observation"]
+        np.testing.assert_allclose(final[-2:], [math.sin(phase[i]), math.cos(phase[i])], atol=1e-9)
+    np.testing.assert_allclose(obs["observation"][:, -2:], [[0.0, 1.0], [0.0, 1.0]], atol=1e-12)
+
+
+def test_serpenoid_residual_refuses_a_task_without_a_baseline(monkeypatch):
+    env = gym.make("snake_env/Snake5-v1")
+    monkeypatch.setattr(env.unwrapped, "task", type("Dance", (), {"name": "dance"})())
+    with pytest.raises(ValueError, match="needs a task with a baseline controller.*got task 'dance'"):
+        SerpenoidResidualAction(env)

@@ -7,6 +7,7 @@ Examples::
     snake-eval --baseline serpenoid --env snake_env/Snake5-v1 --json serpenoid.json
     snake-eval --baseline los --env snake_env/SnakePath5-v1 --json los.json
     snake-eval --baseline steering --env snake_env/SnakeCommand5-v0
+    snake-eval --baseline homing --env snake_env/SnakeReach5-v0
     snake-eval --onnx policy.onnx --episodes 5   # onnxruntime only: neither torch nor SB3 is imported
 
 The env id, env kwargs and VecNormalize statistics come from the run's
@@ -33,7 +34,7 @@ import numpy as np
 EXIT_ERROR = 2
 VIDEO_SUFFIXES = (".gif", ".mp4")
 # baseline controller -> the task it drives
-BASELINES = {"serpenoid": "forward", "los": "path", "steering": "command"}
+BASELINES = {"serpenoid": "forward", "los": "path", "steering": "command", "homing": "reach"}
 
 
 class EvalError(ValueError):
@@ -399,15 +400,16 @@ def _task_of(env_id: str) -> str:
 
 
 def steered_actor(args, path):
-    """Liljebäck's line-of-sight path following (``los``) or the command-steered serpenoid (``steering``)."""
-    from snake_env.agents.path_following import LineOfSightController, SteeringController
+    """Liljebäck's line-of-sight path following (``los``), the command-steered serpenoid (``steering``)
+    or goal seeking (``homing``)."""
+    from snake_env.agents.path_following import GoalSeekingController, LineOfSightController, SteeringController
 
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     try:
         params, speed, n_links, max_torque, dt, include_position = gait_for_task(args.env_id, path, env_kwargs)
         if speed is None:
             raise ValueError(f"the gait for n_links={n_links} in {path} has no search.mean_forward_velocity")
-        cls = LineOfSightController if args.baseline == "los" else SteeringController
+        cls = {"los": LineOfSightController, "steering": SteeringController, "homing": GoalSeekingController}[args.baseline]
         controller = cls(params, n_links, max_torque, dt, gait_speed=float(speed), include_position=include_position)
     except ValueError as exc:
         raise EvalError(_first_line(exc)) from None

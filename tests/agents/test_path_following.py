@@ -1,11 +1,14 @@
-"""The steered-serpenoid baselines: the LOS law, its effect on the path task, the command steering."""
+"""The steered-serpenoid baselines: the LOS law, its effect on the path task, the command steering, goal seeking."""
+
+import math
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import snake_env  # noqa: F401
-from snake_env.agents.path_following import LineOfSightController, SteeringController, mean_link_angle
+from snake_env.agents.path_following import (GoalSeekingController, LineOfSightController, SteeringController,
+                                             mean_link_angle)
 from snake_env.agents.search import load_params
 from snake_env.agents.serpenoid import SerpenoidController, SerpenoidParams
 
@@ -100,3 +103,59 @@ def test_bad_arguments_are_one_line_errors():
         LineOfSightController(SerpenoidParams("torque", 0.5, 10.0, 1.0), 5, 1.0, 0.04, gait_speed=1.0)
     with pytest.raises(ValueError, match="obs must have shape"):
         LineOfSightController(GAIT, 5, 1.0, 0.04, gait_speed=1.86).act(np.zeros(12))
+    with pytest.raises(ValueError, match="hysteresis must be >= 1"):
+        GoalSeekingController(GAIT, 5, 1.0, 0.04, gait_speed=1.86, hysteresis=0.5)
+    with pytest.raises(ValueError, match="reads the reach task's Dict observation"):
+        GoalSeekingController(GAIT, 5, 1.0, 0.04, gait_speed=1.86).act(np.zeros(12))
+    with pytest.raises(ValueError, match="reads a Box observation, got a Dict"):
+        LineOfSightController(GAIT, 5, 1.0, 0.04, gait_speed=1.86).act({"observation": np.zeros(12)})
+
+
+def _goal_obs(goal, heading=0.0, n_envs=None):
+    """A reach observation of a straight snake at rest, CM at the origin, heading ``heading`` (rad)."""
+    physics = np.zeros(12)
+    physics[4:6] = math.cos(heading), math.sin(heading)
+    return {"observation": physics, "achieved_goal": np.zeros(2), "desired_goal": np.asarray(goal, float)}
+
+
+@pytest.mark.parametrize("goal, backing_away, runs_forward", [
+    ((1.0, 0.3), False, True),      # ahead: head first
+    ((-1.0, -0.3), False, False),   # behind: tail first (the gait's phase runs backwards)
+    ((0.2, 0.3), True, False),      # ahead but inside the left turning circle: back away first
+    ((-0.2, -0.3), True, True),     # behind, inside the right turning circle: go forward first
+])
+def test_goal_seeking_chooses_the_end_that_faces_the_goal_and_backs_away_from_an_unreachable_one(
+        goal, backing_away, runs_forward):
+    controller = GoalSeekingController(GAIT, 5, 1.0, 0.04, gait_speed=1.77)
+    assert controller.turn_radius == pytest.approx(1.77 / (9.0 * 0.3))
+    controller.act(_goal_obs(goal))
+    assert controller.backing_away[0] == backing_away
+    assert (controller.phase[0] > 0) == runs_forward and controller.phase[0] != 0
+
+
+def test_goal_seeking_steers_towards_the_goal_head_first_and_tail_first():
+    """gamma's sign: a goal on the left gives gamma > 0 (a larger joint torque than for the mirrored
+    goal) head first, and also tail first: the tail's bearing and the reversed yaw rate both flip sign."""
+    actions = {}
+    for name, goal in {"ahead_left": (1.0, 0.5), "ahead_right": (1.0, -0.5),
+                       "behind_left": (-1.0, 0.5), "behind_right": (-1.0, -0.5)}.items():
+        controller = GoalSeekingController(GAIT, 5, 1.0, 0.04, gait_speed=1.77)
+        actions[name] = controller.act(_goal_obs(goal))
+    assert np.all(actions["ahead_left"] >= actions["ahead_right"]) and np.any(actions["ahead_left"] > actions["ahead_right"])
+    assert np.all(actions["behind_left"] >= actions["behind_right"]) and np.any(actions["behind_left"] > actions["behind_right"])
+
+
+@pytest.mark.parametrize("direction", [0.0, math.pi])
+def test_goal_seeking_reaches_a_goal_ahead_and_one_behind_on_the_reach_task(direction):
+    env = gym.make("snake_env/SnakeReach5-v0")
+    obs, _ = env.reset(seed=4)
+    goal = np.array([math.cos(direction), math.sin(direction)])
+    env.unwrapped.task_state["goal"][0] = goal
+    obs = {**obs, "desired_goal": goal.copy()}
+    controller = GoalSeekingController(GAIT, 5, 1.0, 0.04, gait_speed=1.77)
+    for step in range(400):
+        obs, _, terminated, truncated, info = env.step(controller.act(obs))
+        assert np.sign(info["x_velocity"]) in (0.0, np.sign(goal[0])) or step < 10 or terminated
+        if terminated or truncated:
+            break
+    assert terminated and info["is_success"] and step < 100  # 1 m at the gait's ~1.8 m/s, from rest

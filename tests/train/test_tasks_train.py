@@ -58,6 +58,7 @@ def test_ppo_picks_multi_input_policy_for_the_dict_observation(tmp_path):
     ("snake_env/SnakePath5-v1", "los", ("mean_cross_track_error", "mean_path_speed")),
     ("snake_env/SnakeCommand5-v0", "steering", ("mean_speed_error", "mean_yaw_rate_error")),
     ("snake_env/Snake5-v1", "serpenoid", ()),
+    ("snake_env/SnakeReach5-v0", "homing", ("success_rate", "mean_final_goal_distance")),
 ])
 def test_baselines_report_task_metrics_and_cost_of_transport(tmp_path, env_id, baseline, keys):
     out = tmp_path / "baseline.json"
