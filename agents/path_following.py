@@ -21,7 +21,7 @@ outer loop steers the snake by the joint offset gamma, which turns it
   whichever faces the goal; a goal inside a minimum turning circle cannot be
   reached by turning, so the snake first backs away from it with the body
   straight (a three-point turn).
-gamma is clipped to +-``max_offset``. Both read only the observation
+gamma is clipped to +-``max_offset``. All read only the observation
 (documented layouts of the tasks), no gymnasium import; actions are torques
 in units of ``max_torque``, batched over a leading axis.
 """
@@ -35,6 +35,13 @@ import numpy as np
 from snake_env.agents.serpenoid import SerpenoidParams, joint_slices
 
 TURN_GAIN = 9.0  # rad/s of yaw rate per rad of joint offset, measured on Snake5 with its searched gait
+
+
+def _check_positive(**values) -> None:
+    """One-line ValueError naming the first argument that is not a finite number > 0."""
+    for name, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
 
 def wrap(angle):
@@ -60,10 +67,7 @@ class SteeredSerpenoid:
                  max_offset: float = 0.15):
         if params.family != "pd":
             raise ValueError(f"the steered serpenoid needs a 'pd' gait (joint references), got family {params.family!r}")
-        for name, value in (("max_torque", max_torque), ("dt", dt), ("lookahead", lookahead),
-                            ("max_offset", max_offset)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        _check_positive(max_torque=max_torque, dt=dt, lookahead=lookahead, max_offset=max_offset)
         self.params = params
         self.n_links = n_links
         self.max_torque = float(max_torque)
@@ -117,9 +121,7 @@ class LineOfSightController(SteeredSerpenoid):
                  include_position: bool = False, gain: float = 0.1, lookahead: float = 3.0,
                  max_offset: float = 0.25, speed_scale: float = 1.0):
         super().__init__(params, n_links, max_torque, dt, num_envs, include_position, gain, lookahead, max_offset)
-        for name, value in (("gait_speed", gait_speed), ("speed_scale", speed_scale)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        _check_positive(gait_speed=gait_speed, speed_scale=speed_scale)
         self.speed = float(gait_speed) * float(speed_scale)
         self.speed_scale = float(speed_scale)
 
@@ -142,8 +144,7 @@ class SteeringController(SteeredSerpenoid):
     def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
                  include_position: bool = False, gain: float = 0.3, max_offset: float = 0.15):
         super().__init__(params, n_links, max_torque, dt, num_envs, include_position, gain, 1.0, max_offset)
-        if not (math.isfinite(gait_speed) and gait_speed > 0):
-            raise ValueError(f"gait_speed must be > 0 (m/s), got {gait_speed!r}")
+        _check_positive(gait_speed=gait_speed)
         self.gait_speed = float(gait_speed)
         self.heading_ref = np.full(num_envs, np.nan)
 
@@ -177,17 +178,16 @@ class GoalSeekingController(SteeredSerpenoid):
     turning circle on its side, x_b^2 + (|y_b| - R)^2 < R^2, is reached by no
     turn, so the snake backs away from it with gamma = 0 until the goal is
     ``hysteresis`` R from that circle's centre. (Turning while backing away, towards
-    or away from the goal, reached fewer goals: 60-70% against 86% on SnakeReach5.) Reads the reach task's Dict observation
-    (``observation``, ``achieved_goal`` = CM (m), ``desired_goal`` (m)).
+    or away from the goal, reached fewer goals: 60-70% against 86% on SnakeReach5.)
+    Reads the reach task's Dict observation (``observation``, ``achieved_goal`` =
+    CM (m), ``desired_goal`` (m)).
     """
 
     def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
                  include_position: bool = False, gain: float = 0.5, max_offset: float = 0.3,
                  hysteresis: float = 1.2):
         super().__init__(params, n_links, max_torque, dt, num_envs, include_position, gain, 1.0, max_offset)
-        for name, value in (("gait_speed", gait_speed), ("hysteresis", hysteresis)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        _check_positive(gait_speed=gait_speed, hysteresis=hysteresis)
         if hysteresis < 1.0:
             raise ValueError(f"hysteresis must be >= 1 (turning radii), got {hysteresis!r}")
         self.turn_radius = float(gait_speed) / (TURN_GAIN * self.max_offset)  # m

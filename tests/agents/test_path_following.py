@@ -111,7 +111,7 @@ def test_bad_arguments_are_one_line_errors():
         LineOfSightController(GAIT, 5, 1.0, 0.04, gait_speed=1.86).act({"observation": np.zeros(12)})
 
 
-def _goal_obs(goal, heading=0.0, n_envs=None):
+def _goal_obs(goal, heading=0.0):
     """A reach observation of a straight snake at rest, CM at the origin, heading ``heading`` (rad)."""
     physics = np.zeros(12)
     physics[4:6] = math.cos(heading), math.sin(heading)
