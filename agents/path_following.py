@@ -232,3 +232,7 @@ class GoalSeekingController(SteeredSerpenoid):
         offset = np.where(self.backing_away, 0.0, offset)
         action = self.gait_action(physics, offset, direction)
         return action[0] if single else action
+
+
+# task name -> its steered baseline (``snake-eval --baseline`` and the ``serpenoid_residual`` wrapper)
+TASK_BASELINES = {"path": LineOfSightController, "command": SteeringController, "reach": GoalSeekingController}

@@ -476,7 +476,7 @@ def _residual_settings(env, scale, gait, num_envs: int):
     """(scale, baseline controller) for the residual wrappers: the task's baseline of
     ``snake-eval --baseline`` (forward: the searched serpenoid of ``gait``, default this
     env's id; path: line-of-sight guidance; command: the steered serpenoid; reach: goal seeking)."""
-    from snake_env.agents.path_following import GoalSeekingController, LineOfSightController, SteeringController
+    from snake_env.agents.path_following import TASK_BASELINES
     from snake_env.agents.search import gait_for_links, load_params
     from snake_env.agents.serpenoid import SerpenoidController
 
@@ -494,17 +494,16 @@ def _residual_settings(env, scale, gait, num_envs: int):
             if gait is None:
                 raise ValueError("serpenoid_residual needs gait=<env id of a configs/serpenoid.yaml entry>")
         return scale, SerpenoidController(load_params(gait)[0], **geometry)
-    baselines = {"path": LineOfSightController, "command": SteeringController, "reach": GoalSeekingController}
-    if task not in baselines:
+    if task not in TASK_BASELINES:
         raise ValueError(f"serpenoid_residual needs a task with a baseline controller, one of "
-                         f"{['forward', *baselines]}; got task {task!r}")
+                         f"{['forward', *TASK_BASELINES]}; got task {task!r}")
     if gait is not None:
         raise ValueError(f"gait applies to the forward task; the {task} baseline steers the gait of "
                          f"snake_env/Snake{g['n_links']}-v*, got gait={gait!r}")
     params, speed = gait_for_links(g["n_links"])
     if speed is None:
         raise ValueError(f"the serpenoid gait for n_links={g['n_links']} has no search.mean_forward_velocity")
-    return scale, baselines[task](params, gait_speed=float(speed), **geometry)
+    return scale, TASK_BASELINES[task](params, gait_speed=float(speed), **geometry)
 
 
 class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -514,7 +513,7 @@ class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Args:
         scale: torque of a unit action, as a fraction of max_torque, in (0, 2]; default 0.3.
         gait: forward task only: env id of the ``configs/serpenoid.yaml`` entry (default:
-            this env's id). The path and command baselines steer the gait of
+            this env's id). The path, command and reach baselines steer the gait of
             ``snake_env/Snake{n}-v*`` with this env's n.
     """
 
