@@ -98,3 +98,77 @@ class SaveBestWithStats(BaseCallback):
     def _on_step(self) -> bool:
         save_snapshot(self.model, self.directory / "best_model.zip", self.directory / "vecnormalize.pkl")
         return True
+
+
+class ResidualBurnIn(BaseCallback):
+    """The start of residual policy learning (Silver et al. 2018, "Residual Policy Learning",
+    sec. 4): for use with ``env_wrapper: serpenoid_residual``, whose zero action is the
+    baseline gait.
+
+    On a fresh model the policy's mean layer is set to zero, so the first policy *is* the
+    baseline, and (SAC) its log standard deviation to the constant ``log_std``, a small
+    exploration noise that the gait survives (docs/learning.md, note 4: per-step noise of
+    0.1 of the torque limit already stops the Snake12 gait). For the first ``burn_in_steps``
+    env steps (summed over envs) the actor is frozen and only the critic learns, from
+    rollouts of that gait; the actor's first update then follows a critic that has seen
+    what the gait is worth, rather than a random one. Needs ``learning_starts: 0`` with
+    SAC: SB3 acts uniformly at random before ``learning_starts``, which is not the gait.
+
+    Args:
+        burn_in_steps: env steps with the actor frozen, an integer >= 0.
+        log_std: initial log standard deviation of SAC's Gaussian before its tanh, in
+            [-10, 2] (SB3 clips SAC's log std to [-20, 2]); PPO keeps its ``log_std_init``.
+    """
+
+    def __init__(self, burn_in_steps: int = 50_000, log_std: float = -3.0, verbose: int = 0):
+        super().__init__(verbose)
+        if isinstance(burn_in_steps, bool) or not isinstance(burn_in_steps, int) or burn_in_steps < 0:
+            raise ValueError(f"ResidualBurnIn burn_in_steps must be an integer >= 0, got {burn_in_steps!r}")
+        if isinstance(log_std, bool) or not isinstance(log_std, (int, float)) or not -10.0 <= log_std <= 2.0:
+            raise ValueError(f"ResidualBurnIn log_std must be a number in [-10, 2], got {log_std!r}")
+        self.burn_in_steps = burn_in_steps
+        self.log_std = float(log_std)
+        self._frozen = False
+
+    def _actor_parts(self):
+        """(mean layer, SAC log-std layer or None, parameters the actor's update changes)."""
+        import torch.nn as nn
+
+        if hasattr(self.model, "actor"):  # SAC
+            actor = self.model.actor
+            if not isinstance(actor.mu, nn.Linear) or not isinstance(actor.log_std, nn.Linear):
+                raise ValueError("ResidualBurnIn supports SAC without gSDE (use_sde: false)")
+            return actor.mu, actor.log_std, list(actor.parameters())
+        policy = self.model.policy  # PPO: the policy branch, its action head and log std
+        params = [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters(), policy.log_std]
+        return policy.action_net, None, params
+
+    def _set_frozen(self, frozen: bool) -> None:
+        for param in self._actor_parts()[2]:
+            param.requires_grad_(not frozen)
+        self._frozen = frozen
+
+    def _on_training_start(self) -> None:
+        import torch
+
+        if getattr(self.model, "learning_starts", 0) > self.model.num_timesteps:
+            raise ValueError("ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before learning_starts)")
+        mean, log_std, _ = self._actor_parts()
+        if self.model.num_timesteps == 0:
+            with torch.no_grad():
+                mean.weight.zero_()
+                mean.bias.zero_()
+                if log_std is not None:
+                    log_std.weight.zero_()
+                    log_std.bias.fill_(self.log_std)
+        self._set_frozen(self.model.num_timesteps < self.burn_in_steps)
+
+    def _on_step(self) -> bool:
+        if self._frozen and self.model.num_timesteps >= self.burn_in_steps:
+            self._set_frozen(False)
+            if self.verbose:
+                print(f"ResidualBurnIn: actor unfrozen at {self.model.num_timesteps} steps")
+        return True
+
+    def _on_training_end(self) -> None:
+        self._set_frozen(False)  # a saved or resumed model trains as usual

@@ -45,6 +45,9 @@ META_DEFAULTS = {
     # opt-in observation/action modes (snake_env.wrappers), RL Zoo's key name:
     # a mapping {name: kwargs} applied in order, e.g. {joint_target: {kp: 1.0}}
     "env_wrapper": None,
+    # extra SB3 callbacks, RL Zoo's key and form: a dotted class name, or a list of names and
+    # one-key mappings {dotted name: kwargs}, e.g. [{snake_env.train.callbacks.ResidualBurnIn: {burn_in_steps: 40000}}]
+    "callback": None,
 }
 RUN_KEYS = ("algo", "env_id", "seed")
 VEC_ENV_KINDS = ("batched", "dummy")
@@ -315,7 +318,51 @@ def validate(config: dict) -> dict:
         raise ConfigError(f"replay_buffer_class must be one of {list(REPLAY_BUFFERS)}, got {config['replay_buffer_class']!r}")
     if isinstance(config.get("replay_buffer_kwargs"), str):
         parse_python_dict(config["replay_buffer_kwargs"], "replay_buffer_kwargs")
+    callbacks = make_callbacks(config) if config["callback"] is not None else []
+    if any(type(c).__name__ == "ResidualBurnIn" for c in callbacks) and algo == "sac" and config.get("learning_starts", 100) != 0:
+        raise ConfigError(f"callback ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before "
+                          f"learning_starts), got {config.get('learning_starts', 100)!r}")
     return config
+
+
+def callback_specs(value) -> list[tuple[str, dict]]:
+    """The zoo's ``callback`` value as [(dotted class name, kwargs)]."""
+    if value is None:
+        return []
+    out = []
+    for item in value if isinstance(value, list) else [value]:
+        if isinstance(item, str):
+            out.append((item, {}))
+        elif isinstance(item, dict) and len(item) == 1 and isinstance(next(iter(item.values())), (dict, type(None))):
+            name, kwargs = next(iter(item.items()))
+            out.append((name, dict(kwargs or {})))
+        else:
+            raise ConfigError(f"callback entries must be dotted class names or one-key mappings "
+                              f"{{name: kwargs}}, got {item!r}")
+    return out
+
+
+def make_callbacks(config: dict) -> list:
+    """Instantiate the ``callback`` entries (SB3 BaseCallback subclasses, RL Zoo style)."""
+    import importlib
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    callbacks = []
+    for name, kwargs in callback_specs(config.get("callback")):
+        module_name, _, class_name = str(name).rpartition(".")
+        try:
+            cls = getattr(importlib.import_module(module_name), class_name) if module_name else None
+        except (ImportError, AttributeError):
+            cls = None
+        if not (isinstance(cls, type) and issubclass(cls, BaseCallback)):
+            raise ConfigError(f"callback {name!r} is not an importable SB3 callback class "
+                              f"(a dotted name such as snake_env.train.callbacks.ResidualBurnIn)")
+        try:
+            callbacks.append(cls(**kwargs))
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"callback {name}: {str(exc).strip().splitlines()[0]}") from None
+    return callbacks
 
 
 def replay_buffer_class(name):

@@ -200,6 +200,7 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar=True, verbose:
         EvalCallback(eval_env, n_eval_episodes=config["n_eval_episodes"], eval_freq=eval_freq,
                      deterministic=True, log_path=str(run_dir / "eval"), best_model_save_path=None,
                      callback_on_new_best=cb.SaveBestWithStats(best_dir), verbose=verbose),
+        *cfg.make_callbacks(config),
     ])
     mode = progress_mode({True: "auto", False: "none"}.get(progress_bar, progress_bar))
     if mode == "lines":
