@@ -25,7 +25,8 @@ class OnnxPolicy:
 
     Attributes: ``metadata`` (dict of the model's metadata_props), ``env_id``,
     ``env_kwargs`` (dict), ``env_wrapper`` (the ``wrap_env`` spec, or None),
-    ``obs_size``, ``action_size``.
+    ``obs_size``, ``action_size``, ``obs_keys`` (``{key: size}`` of a goal task's Dict
+    observation, one graph input per key; None for a Box observation).
     """
 
     def __init__(self, path):
@@ -56,16 +57,27 @@ class OnnxPolicy:
         self.obs_size = int(self.metadata["obs_size"])
         self.action_size = int(self.metadata["action_size"])
         self.input_name = self.session.get_inputs()[0].name
+        self.obs_keys = json.loads(self.metadata["obs_keys"]) if "obs_keys" in self.metadata else None
 
     def check_spaces(self, observation_space, action_space) -> None:
-        if tuple(observation_space.shape) != (self.obs_size,) or tuple(action_space.shape) != (self.action_size,):
+        if self.obs_keys is not None:
+            spaces = getattr(observation_space, "spaces", None)
+            have = {k: tuple(s.shape) for k, s in spaces.items()} if isinstance(spaces, dict) else observation_space.shape
+            want = {k: (size,) for k, size in self.obs_keys.items()}
+        else:
+            have, want = getattr(observation_space, "shape", None), (self.obs_size,)
+        if have != want or tuple(action_space.shape) != (self.action_size,):
             raise OnnxPolicyError(
-                f"{self.path} maps observations of size {self.obs_size} to actions of size {self.action_size}; "
-                f"the env has {observation_space.shape} -> {action_space.shape}")
+                f"{self.path} maps observations {want} to actions of size {self.action_size}; "
+                f"the env has {have} -> {action_space.shape}")
 
-    def act_batch(self, obs: np.ndarray) -> np.ndarray:
-        """(batch, obs_size) -> (batch, action_size), float32."""
+    def act_batch(self, obs) -> np.ndarray:
+        """(batch, obs_size) -> (batch, action_size), float32; a Dict observation as {key: (batch, size)}."""
+        if self.obs_keys is not None:
+            return self.session.run(None, {key: np.asarray(obs[key], np.float32) for key in self.obs_keys})[0]
         return self.session.run(None, {self.input_name: np.asarray(obs, np.float32)})[0]
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def act(self, obs) -> np.ndarray:
+        if self.obs_keys is not None:
+            return self.act_batch({key: np.asarray(obs[key], np.float32)[None] for key in self.obs_keys})[0]
         return self.act_batch(np.asarray(obs, np.float32)[None])[0]

@@ -19,7 +19,10 @@ PyTorch nor Stable-Baselines3 is installed (onnxruntime alone):
    [low, high].
 
 Input ``obs`` (batch, obs_size) float32; output ``action`` (batch, n_links - 1)
-float32 joint torques in units of ``max_torque``. The model's metadata
+float32 joint torques in units of ``max_torque``. A goal task's Dict observation
+(``observation`` / ``achieved_goal`` / ``desired_goal``, SB3's MultiInputPolicy) becomes one
+input per key, named after the key, in the space's order, each normalized with its own
+statistics; the metadata key ``obs_keys`` (JSON ``{key: size}``) lists them. The model's metadata
 (``metadata_props``) holds the env id, its env kwargs (JSON), n_links, the
 observation and action sizes, the algorithm and the snake_env version; the
 graph is validated with ``onnx.checker`` before it is written (atomically).
@@ -108,9 +111,13 @@ def load_for_export(target, env_id=None):
         raise ExportError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs} and env_wrapper {env_wrapper}: "
                           f"{_first_line(exc)}") from None
     try:
-        if not isinstance(env.observation_space, gym.spaces.Box) or not isinstance(env.action_space, gym.spaces.Box):
-            raise ExportError(f"{env_id} has {type(env.observation_space).__name__} observations and "
-                              f"{type(env.action_space).__name__} actions; export supports Box spaces only")
+        obs_space = env.observation_space
+        parts = obs_space.spaces.values() if isinstance(obs_space, gym.spaces.Dict) else [obs_space]
+        if not all(isinstance(part, gym.spaces.Box) and len(part.shape) == 1 for part in parts) \
+                or not isinstance(env.action_space, gym.spaces.Box):
+            raise ExportError(f"{env_id} has {type(obs_space).__name__} observations and "
+                              f"{type(env.action_space).__name__} actions; export supports flat Box observations "
+                              f"(or a Dict of them) and Box actions")
         loaded = load_policy(files.model, env.observation_space, env.action_space, config)
         n_links = int(getattr(env.unwrapped, "n_links", env.action_space.shape[0] + 1))
         return loaded, env_id, env_kwargs, env_wrapper, env.observation_space, env.action_space, n_links
@@ -120,40 +127,58 @@ def load_for_export(target, env_id=None):
         env.close()
 
 
-def policy_graph(loaded, action_space):
-    """A torch module: raw observation (batch, obs) float32 -> env action (batch, act) float32."""
+def observation_keys(observation_space) -> list[str] | None:
+    """The keys of a Dict observation, in the space's order (one graph input each); None for a Box."""
+    from gymnasium import spaces
+
+    return list(observation_space.spaces) if isinstance(observation_space, spaces.Dict) else None
+
+
+def policy_graph(loaded, action_space, observation_space=None):
+    """A torch module: raw observation (batch, obs) float32 -> env action (batch, act) float32; for a
+    Dict observation space, one (batch, size) input per key in :func:`observation_keys`' order."""
     import numpy as np
     import torch
     from torch import nn
 
     policy = loaded.model.policy
     normalizer = loaded.normalizer
-    norm = None
+    keys = observation_keys(observation_space) if observation_space is not None else None
+    # (mean, var) per normalized input: index 0 for a Box, the normalized keys for a Dict
+    stats = {}
     if normalizer is not None and normalizer.norm_obs:
-        rms = normalizer.obs_rms
-        norm = (np.asarray(rms.mean, np.float64), np.asarray(rms.var, np.float64),
-                float(normalizer.epsilon), float(normalizer.clip_obs))
+        if keys is None:
+            stats[0] = normalizer.obs_rms
+        else:
+            stats = {keys.index(key): normalizer.obs_rms[key] for key in normalizer.norm_obs_keys}
+    epsilon = float(normalizer.epsilon) if normalizer is not None else 0.0
+    clip_obs = float(normalizer.clip_obs) if normalizer is not None else 0.0
 
     class ObsToAction(nn.Module):
         def __init__(self):
             super().__init__()
             self.policy = policy
-            self.normalize = norm is not None
-            if self.normalize:
-                mean, var, epsilon, clip = norm
-                self.register_buffer("obs_mean", torch.as_tensor(mean))
-                self.register_buffer("obs_std", torch.sqrt(torch.as_tensor(var) + epsilon))
-                self.clip_obs = clip
+            self.keys = keys
+            self.normalize = bool(stats)
+            self.normalized = sorted(stats)
+            for index, rms in stats.items():
+                self.register_buffer(f"obs_mean_{index}", torch.as_tensor(np.asarray(rms.mean, np.float64)))
+                self.register_buffer(f"obs_std_{index}",
+                                     torch.sqrt(torch.as_tensor(np.asarray(rms.var, np.float64)) + epsilon))
+            self.clip_obs = clip_obs
             self.register_buffer("low", torch.as_tensor(action_space.low, dtype=torch.float32))
             self.register_buffer("high", torch.as_tensor(action_space.high, dtype=torch.float32))
             self.is_sac = loaded.algo == "sac"
             self.squash = bool(policy.squash_output)
 
-        def forward(self, obs):
-            if self.normalize:
+        def forward(self, *inputs):
+            inputs = list(inputs)
+            for index in self.normalized:
                 # VecNormalize._normalize_obs in float64, then .astype(float32)
-                x = torch.clamp((obs.double() - self.obs_mean) / self.obs_std, -self.clip_obs, self.clip_obs)
-                obs = x.float()
+                mean, std = getattr(self, f"obs_mean_{index}"), getattr(self, f"obs_std_{index}")
+                inputs[index] = torch.clamp((inputs[index].double() - mean) / std,
+                                            -self.clip_obs, self.clip_obs).float()
+            obs = inputs[0] if self.keys is None else dict(zip(self.keys, inputs))
             if self.is_sac:
                 mean_actions, _, _ = self.policy.actor.get_action_dist_params(obs)
             else:
@@ -183,21 +208,24 @@ def export_onnx(target, out, env_id=None, opset: int = OPSET) -> dict:
     out = Path(out)
     check_output(out)
     loaded, env_id, env_kwargs, env_wrapper, obs_space, action_space, n_links = load_for_export(target, env_id)
-    module = policy_graph(loaded, action_space)
-    dummy = torch.zeros((1, obs_space.shape[0]), dtype=torch.float32)
+    module = policy_graph(loaded, action_space, obs_space)
+    keys = observation_keys(obs_space)
+    sizes = {INPUT_NAME: obs_space.shape[0]} if keys is None else {k: obs_space[k].shape[0] for k in keys}
+    dummies = tuple(torch.zeros((1, size), dtype=torch.float32) for size in sizes.values())
     buffer = io.BytesIO()
     with torch.no_grad(), warnings.catch_warnings():
         # the TorchScript-based exporter: a plain MLP needs neither onnxscript nor torch.export
         warnings.simplefilter("ignore", DeprecationWarning)
-        torch.onnx.export(module, (dummy,), buffer, input_names=[INPUT_NAME], output_names=[OUTPUT_NAME],
-                          dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
+        torch.onnx.export(module, dummies, buffer, input_names=list(sizes), output_names=[OUTPUT_NAME],
+                          dynamic_axes={name: {0: "batch"} for name in (*sizes, OUTPUT_NAME)},
                           opset_version=opset, dynamo=False)
     model = onnx.load_from_string(buffer.getvalue())
     metadata = {
         "env_id": env_id,
         "env_kwargs": json.dumps(env_kwargs, sort_keys=True),
         "n_links": str(n_links),
-        "obs_size": str(obs_space.shape[0]),
+        "obs_size": str(sum(sizes.values())),
+        **({"obs_keys": json.dumps(sizes)} if keys is not None else {}),
         "action_size": str(action_space.shape[0]),
         "algo": loaded.algo,
         "vecnormalize": "folded" if module.normalize else "none",

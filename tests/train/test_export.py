@@ -223,3 +223,61 @@ def test_snake_eval_onnx_errors(tmp_path):
                           text=True, timeout=300,
                           env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])})
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "not a readable ONNX model" in proc.stderr
+
+
+REACH = "snake_env/SnakeReach5-v0"
+
+
+@pytest.mark.parametrize("algo, extra", [
+    # the shipped PPO entry: residual on goal seeking, observations normalized per key
+    ("ppo", ["--set", "n_steps=32", "--set", "batch_size=32", "--set", "n_epochs=1"]),
+    # SAC + HER, no normalization (the shipped SAC entry)
+    ("sac", ["--set", "learning_starts=120", "--set", "buffer_size=2000", "--set", "batch_size=32"]),
+])
+def test_a_goal_task_policy_exports_one_input_per_key(tmp_path, algo, extra):
+    """Dict observation (observation / achieved_goal / desired_goal): one named graph input per
+    key; the graph gives SB3's predict on recorded observations, and snake-eval --onnx gives
+    the SB3 evaluation, task metrics included."""
+    from snake_env.train.train import main
+    from snake_env.wrappers import wrap_env
+
+    run_dir = tmp_path / algo
+    assert main(["--algo", algo, "--env", REACH, "--total-timesteps", "300" if algo == "sac" else "128",
+                 "--run-dir", str(run_dir), "--n-envs", "2", "--set", "env_kwargs.max_episode_steps=50",
+                 "--set", "eval_freq=1000", "--set", "n_eval_episodes=1", "--no-progress-bar", *extra]) == 0
+    out = tmp_path / "reach.onnx"
+    assert export_main([str(run_dir), "--out", str(out)]) == 0
+    meta = read_metadata(out)
+    config = yaml_config(run_dir)
+    env = wrap_env(gym.make(REACH, **config["env_kwargs"]), config.get("env_wrapper"))
+    sizes = {key: space.shape[0] for key, space in env.observation_space.spaces.items()}
+    assert json.loads(meta["obs_keys"]) == sizes and meta["obs_size"] == str(sum(sizes.values()))
+    assert meta["vecnormalize"] == ("folded" if algo == "ppo" else "none")
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    assert [i.name for i in session.get_inputs()] == list(sizes)
+
+    loaded = load_policy(run_dir, env.observation_space, env.action_space, config)
+    observations = []
+    obs, _ = env.reset(seed=0)
+    env.action_space.seed(0)
+    while len(observations) < 200:
+        observations.append(obs)
+        obs, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            obs, _ = env.reset()
+    env.close()
+    expected = np.stack([loaded.act(o) for o in observations])
+    batch = {key: np.stack([o[key] for o in observations]).astype(np.float32) for key in sizes}
+    np.testing.assert_allclose(session.run(None, batch)[0], expected, rtol=0, atol=1e-5)
+
+    reference = eval_json(tmp_path / "sb3.json", run_dir, "--episodes", "1", "--max-steps", "5")
+    via_onnx = eval_json(tmp_path / "onnx.json", "--onnx", out, "--episodes", "1", "--max-steps", "5")
+    assert via_onnx["task"] == reference["task"] == "reach"
+    assert via_onnx["episodes"][0]["return"] == pytest.approx(reference["episodes"][0]["return"], abs=1e-5)
+    assert via_onnx["mean_final_goal_distance"] == pytest.approx(reference["mean_final_goal_distance"], abs=1e-5)
+
+
+def yaml_config(run_dir) -> dict:
+    from snake_env.train.config import load_run_config
+
+    return load_run_config(run_dir / "config.yaml")
