@@ -31,12 +31,22 @@ def test_zoo_hyperparams_cover_our_configs_without_project_keys(algo):
                                                  "env_kwargs"}
     for env_id, entry in zoo.items():
         assert not set(entry) & set(PROJECT_ONLY_KEYS), env_id
-        assert set(entry) <= allowed | {"env_wrapper"}, (env_id, set(entry) - allowed)
+        assert set(entry) <= allowed | {"env_wrapper", "callback"}, (env_id, set(entry) - allowed)
         if "env_wrapper" in entry:  # ours is {name: kwargs}; the zoo's a list of {"module.Class": kwargs}
             assert entry["env_wrapper"] and all(len(item) == 1 for item in entry["env_wrapper"]), env_id
         if "policy_kwargs" in entry:
             assert isinstance(eval(entry["policy_kwargs"]), dict)
         assert entry["n_timesteps"] == cfg.coerce_scalar(ours[env_id])["n_timesteps"]
+
+
+def test_zoo_builds_the_configured_callbacks():
+    """``callback`` is RL Zoo's key in its own form; the zoo's loader builds ours from it."""
+    from snake_env.train.callbacks import ResidualBurnIn
+
+    entry = zoo_hyperparams("sac")[newest_id("Snake12")]
+    rl_zoo3_utils = pytest.importorskip("rl_zoo3.utils")
+    (callback,) = rl_zoo3_utils.get_callback_list(entry)
+    assert isinstance(callback, ResidualBurnIn) and callback.burn_in_steps > 0
 
 
 def test_zoo_env_wrapper_builds_our_single_env_wrappers():
