@@ -84,3 +84,23 @@ def test_callback_reaches_the_zoo_unchanged():
     from snake_env.train.zoo import zoo_entry
 
     assert zoo_entry({"callback": BURN_IN, "n_envs": 2})["callback"] == BURN_IN
+
+
+def test_ppo_learns_only_its_value_function_during_the_burn_in():
+    from snake_env.train.envs import make_vec_env, wrap_normalize
+    from snake_env.train.train import build_model
+
+    config = cfg.build_config("ppo", ENV, overrides=[
+        "env_wrapper=serpenoid_residual", "n_steps=16", "batch_size=32", "n_epochs=2",
+        "policy_kwargs.net_arch=[16]", "env_kwargs.max_episode_steps=40"], n_envs=2)
+    config["callback"] = [{"snake_env.train.callbacks.ResidualBurnIn": {"burn_in_steps": 1000}}]
+    config = cfg.validate(config)
+    model = build_model(config, wrap_normalize(make_vec_env(config, 2, 0), config, training=True), 0)
+    policy = model.policy
+    actor_before = [p.clone() for p in (*policy.mlp_extractor.policy_net.parameters(), policy.log_std)]
+    value_before = [p.clone() for p in policy.value_net.parameters()]
+    model.learn(total_timesteps=64, callback=cfg.make_callbacks(config))
+    assert torch.count_nonzero(policy.action_net.weight) == 0 and torch.count_nonzero(policy.action_net.bias) == 0
+    after = [*policy.mlp_extractor.policy_net.parameters(), policy.log_std]
+    assert all(torch.equal(a, b) for a, b in zip(actor_before, after))
+    assert any(not torch.equal(a, b) for a, b in zip(value_before, policy.value_net.parameters()))
