@@ -121,12 +121,14 @@ class Objective:
             venv = wrap_normalize(venv, config, training=True)
             eval_env = wrap_normalize(eval_env, config, training=False)
             model = build_model(config, venv, verbose=0)
-            callback = TrialEvalCallback(trial, eval_env, self.n_evaluations, config["n_timesteps"],
-                                         config["n_eval_episodes"])
-            model.learn(total_timesteps=config["n_timesteps"], callback=callback, progress_bar=False)
-            if callback.eval_index == 0:  # a budget shorter than one rollout: evaluate once at the end
-                callback.evaluate()
-            return callback.last_speed
+            trial_eval = TrialEvalCallback(trial, eval_env, self.n_evaluations, config["n_timesteps"],
+                                           config["n_eval_episodes"])
+            # the config's own callbacks (e.g. ResidualBurnIn) run as they do in snake-train
+            model.learn(total_timesteps=config["n_timesteps"], callback=[trial_eval, *cfg.make_callbacks(config)],
+                        progress_bar=False)
+            if trial_eval.eval_index == 0:  # a budget shorter than one rollout: evaluate once at the end
+                trial_eval.evaluate()
+            return trial_eval.last_speed
         finally:
             venv.close()
             eval_env.close()

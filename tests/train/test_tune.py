@@ -19,6 +19,7 @@ from optuna.trial import TrialState
 from snake_env.train import tune
 from snake_env.train.train import main as train_main
 from snake_env.train.tune_objective import TrialEvalCallback
+from stable_baselines3.common.callbacks import BaseCallback
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = "snake_env/Snake3-v1"
@@ -250,3 +251,23 @@ def test_baseline_searches_nothing(tmp_path):
     assert tune.main(tune_args(out, 256, 1, "--baseline")) == 0
     study = load(out)
     assert study.trials[0].params == {} and study.trials[0].state == TrialState.COMPLETE
+
+
+class CountingCallback(BaseCallback):
+    """Counts the trainings it was started in (class-level: the tuner builds its own instance)."""
+
+    started = 0
+
+    def _on_training_start(self) -> None:
+        type(self).started += 1
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def test_the_configs_callbacks_run_in_every_trial(tmp_path):
+    """A ``callback`` entry (e.g. ResidualBurnIn) acts in tuning trials as in snake-train."""
+    CountingCallback.started = 0
+    out = tmp_path / "study"
+    assert tune.main(tune_args(out, 128, 2, "--set", "callback=tests.train.test_tune.CountingCallback")) == 0
+    assert CountingCallback.started == len(load(out).trials) == 2
