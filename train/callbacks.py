@@ -151,6 +151,7 @@ class ResidualBurnIn(BaseCallback):
     def _on_training_start(self) -> None:
         import torch
 
+        # snake-train's config check says this first; RL Zoo builds the callback without it
         if getattr(self.model, "learning_starts", 0) > self.model.num_timesteps:
             raise ValueError("ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before learning_starts)")
         mean, log_std, _ = self._actor_parts()

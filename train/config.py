@@ -318,10 +318,14 @@ def validate(config: dict) -> dict:
         raise ConfigError(f"replay_buffer_class must be one of {list(REPLAY_BUFFERS)}, got {config['replay_buffer_class']!r}")
     if isinstance(config.get("replay_buffer_kwargs"), str):
         parse_python_dict(config["replay_buffer_kwargs"], "replay_buffer_kwargs")
-    callbacks = make_callbacks(config) if config["callback"] is not None else []
-    if any(type(c).__name__ == "ResidualBurnIn" for c in callbacks) and algo == "sac" and config.get("learning_starts", 100) != 0:
-        raise ConfigError(f"callback ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before "
-                          f"learning_starts), got {config.get('learning_starts', 100)!r}")
+    if config["callback"] is not None:
+        from snake_env.train.callbacks import ResidualBurnIn
+
+        # SAC's default learning_starts is 100
+        burn_in = any(isinstance(c, ResidualBurnIn) for c in make_callbacks(config))
+        if burn_in and algo == "sac" and config.get("learning_starts", 100) != 0:
+            raise ConfigError(f"callback ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before "
+                              f"learning_starts), got {config.get('learning_starts', 100)!r}")
     return config
 
 

@@ -134,7 +134,7 @@ def observation_keys(observation_space) -> list[str] | None:
     return list(observation_space.spaces) if isinstance(observation_space, spaces.Dict) else None
 
 
-def policy_graph(loaded, action_space, observation_space=None):
+def policy_graph(loaded, observation_space, action_space):
     """A torch module: raw observation (batch, obs) float32 -> env action (batch, act) float32; for a
     Dict observation space, one (batch, size) input per key in :func:`observation_keys`' order."""
     import numpy as np
@@ -143,7 +143,7 @@ def policy_graph(loaded, action_space, observation_space=None):
 
     policy = loaded.model.policy
     normalizer = loaded.normalizer
-    keys = observation_keys(observation_space) if observation_space is not None else None
+    keys = observation_keys(observation_space)
     # (mean, var) per normalized input: index 0 for a Box, the normalized keys for a Dict
     stats = {}
     if normalizer is not None and normalizer.norm_obs:
@@ -208,8 +208,8 @@ def export_onnx(target, out, env_id=None, opset: int = OPSET) -> dict:
     out = Path(out)
     check_output(out)
     loaded, env_id, env_kwargs, env_wrapper, obs_space, action_space, n_links = load_for_export(target, env_id)
-    module = policy_graph(loaded, action_space, obs_space)
-    keys = observation_keys(obs_space)
+    module = policy_graph(loaded, obs_space, action_space)
+    keys = module.keys
     sizes = {INPUT_NAME: obs_space.shape[0]} if keys is None else {k: obs_space[k].shape[0] for k in keys}
     dummies = tuple(torch.zeros((1, size), dtype=torch.float32) for size in sizes.values())
     buffer = io.BytesIO()
