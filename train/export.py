@@ -159,8 +159,7 @@ def policy_graph(loaded, observation_space, action_space):
             super().__init__()
             self.policy = policy
             self.keys = keys
-            self.normalize = bool(stats)
-            self.normalized = sorted(stats)
+            self.normalized = sorted(stats)  # indices of the inputs with VecNormalize statistics
             for index, rms in stats.items():
                 self.register_buffer(f"obs_mean_{index}", torch.as_tensor(np.asarray(rms.mean, np.float64)))
                 self.register_buffer(f"obs_std_{index}",
@@ -228,7 +227,7 @@ def export_onnx(target, out, env_id=None, opset: int = OPSET) -> dict:
         **({"obs_keys": json.dumps(sizes)} if keys is not None else {}),
         "action_size": str(action_space.shape[0]),
         "algo": loaded.algo,
-        "vecnormalize": "folded" if module.normalize else "none",
+        "vecnormalize": "folded" if module.normalized else "none",
         "snake_env_version": snake_env.__version__,
         "source_model": loaded.files.model.name,
         **({"env_wrapper": json.dumps(env_wrapper, sort_keys=True)} if env_wrapper else {}),

@@ -21,6 +21,7 @@ onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
 from snake_env.agents.policy_loading import load_policy  # noqa: E402
+from snake_env.train.config import load_run_config  # noqa: E402
 from snake_env.train.export import main as export_main  # noqa: E402
 from snake_env.train.export import read_metadata  # noqa: E402
 
@@ -248,7 +249,7 @@ def test_a_goal_task_policy_exports_one_input_per_key(tmp_path, algo, extra):
     out = tmp_path / "reach.onnx"
     assert export_main([str(run_dir), "--out", str(out)]) == 0
     meta = read_metadata(out)
-    config = yaml_config(run_dir)
+    config = load_run_config(run_dir / "config.yaml")
     env = wrap_env(gym.make(REACH, **config["env_kwargs"]), config.get("env_wrapper"))
     sizes = {key: space.shape[0] for key, space in env.observation_space.spaces.items()}
     assert json.loads(meta["obs_keys"]) == sizes and meta["obs_size"] == str(sum(sizes.values()))
@@ -275,9 +276,3 @@ def test_a_goal_task_policy_exports_one_input_per_key(tmp_path, algo, extra):
     assert via_onnx["task"] == reference["task"] == "reach"
     assert via_onnx["episodes"][0]["return"] == pytest.approx(reference["episodes"][0]["return"], abs=1e-5)
     assert via_onnx["mean_final_goal_distance"] == pytest.approx(reference["mean_final_goal_distance"], abs=1e-5)
-
-
-def yaml_config(run_dir) -> dict:
-    from snake_env.train.config import load_run_config
-
-    return load_run_config(run_dir / "config.yaml")
