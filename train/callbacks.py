@@ -114,20 +114,49 @@ class ResidualBurnIn(BaseCallback):
     what the gait is worth, rather than a random one. Needs ``learning_starts: 0`` with
     SAC: SB3 acts uniformly at random before ``learning_starts``, which is not the gait.
 
+    After the burn-in, two SAC options keep the actor near the baseline, where the critic
+    has data. A critic fitted on the gait's rollouts is only right near the actions they
+    tried (a ball of the exploration noise around the zero correction); followed outside it,
+    its action gradient is the extrapolation error of offline RL. ``residual_penalty`` adds
+    TD3+BC's regularizer (Fujimoto and Gu 2021, eq. 3) with the baseline as the behaviour
+    policy: the actor's loss gets ``residual_penalty * mean|Q| * mean(a_det**2)``, a_det =
+    tanh(mean) the deterministic correction and mean|Q| the critic's mean absolute value
+    on a replay batch (refreshed every ``q_scale_every`` env steps), so the weight is free
+    of the reward's scale (TD3+BC's alpha = 2.5 is a weight of 0.4). ``learn_log_std:
+    false`` keeps the exploration noise at ``log_std`` for the whole run.
+
     Args:
         burn_in_steps: env steps with the actor frozen, an integer >= 0.
         log_std: initial log standard deviation of SAC's Gaussian before its tanh, in
             [-10, 2] (SB3 clips SAC's log std to [-20, 2]); PPO keeps its ``log_std_init``.
+        residual_penalty: SAC only: weight of the penalty on the correction, >= 0 (0: none).
+        learn_log_std: SAC only: whether the log std learns after the burn-in.
+        q_scale_every: env steps between two estimates of mean|Q|, an integer >= 1.
     """
 
-    def __init__(self, burn_in_steps: int = 50_000, log_std: float = -3.0, verbose: int = 0):
+    def __init__(self, burn_in_steps: int = 50_000, log_std: float = -3.0, residual_penalty: float = 0.0,
+                 learn_log_std: bool = True, q_scale_every: int = 1000, verbose: int = 0):
         super().__init__(verbose)
         if isinstance(burn_in_steps, bool) or not isinstance(burn_in_steps, int) or burn_in_steps < 0:
             raise ValueError(f"ResidualBurnIn burn_in_steps must be an integer >= 0, got {burn_in_steps!r}")
         if isinstance(log_std, bool) or not isinstance(log_std, (int, float)) or not -10.0 <= log_std <= 2.0:
             raise ValueError(f"ResidualBurnIn log_std must be a number in [-10, 2], got {log_std!r}")
+        if (isinstance(residual_penalty, bool) or not isinstance(residual_penalty, (int, float))
+                or not 0.0 <= residual_penalty < float("inf")):
+            raise ValueError(f"ResidualBurnIn residual_penalty must be a finite number >= 0, got {residual_penalty!r}")
+        if not isinstance(learn_log_std, bool):
+            raise ValueError(f"ResidualBurnIn learn_log_std must be true or false, got {learn_log_std!r}")
+        if isinstance(q_scale_every, bool) or not isinstance(q_scale_every, int) or q_scale_every < 1:
+            raise ValueError(f"ResidualBurnIn q_scale_every must be an integer >= 1, got {q_scale_every!r}")
         self.burn_in_steps = burn_in_steps
         self.log_std = float(log_std)
+        self.residual_penalty = float(residual_penalty)
+        self.learn_log_std = learn_log_std
+        self.q_scale_every = q_scale_every
+        self.q_scale = 0.0  # mean |Q| of the last estimate; the penalty waits for the first one
+        self._next_q_scale = 0
+        self._hook = None
+        self._training = False
         self._frozen = False
 
     def _actor_parts(self):
@@ -144,9 +173,35 @@ class ResidualBurnIn(BaseCallback):
         return policy.action_net, None, params
 
     def _set_frozen(self, frozen: bool) -> None:
-        for param in self._actor_parts()[2]:
+        _, log_std, params = self._actor_parts()
+        for param in params:
             param.requires_grad_(not frozen)
+        if log_std is not None and not self.learn_log_std and self._training:
+            log_std.requires_grad_(False)  # while training; _on_training_end releases it
         self._frozen = frozen
+
+    def _penalize(self, module, inputs, mean):
+        """Forward hook on SAC's mean layer: when the actor's loss is differentiated, add the
+        gradient of residual_penalty * q_scale * mean(tanh(mean)**2) (batch and action axes)."""
+        coef = self.residual_penalty * self.q_scale
+        if coef > 0.0 and mean.requires_grad:
+            squashed = mean.detach().tanh()
+            extra = 2.0 * coef * squashed * (1.0 - squashed**2) / squashed.numel()
+            mean.register_hook(lambda grad: grad + extra)
+
+    def _estimate_q_scale(self) -> None:
+        """mean |Q1(s, a_det(s))| over a replay batch (TD3+BC's normalizer)."""
+        import torch
+
+        buffer = self.model.replay_buffer
+        if buffer.size() == 0:
+            return
+        data = buffer.sample(self.model.batch_size, env=self.model.get_vec_normalize_env())
+        with torch.no_grad():
+            actions = self.model.actor(data.observations, deterministic=True)
+            q_value = self.model.critic.q1_forward(data.observations, actions)
+        self.q_scale = float(q_value.abs().mean())
+        self.logger.record("train/residual_q_scale", self.q_scale)
 
     def _on_training_start(self) -> None:
         import torch
@@ -155,6 +210,11 @@ class ResidualBurnIn(BaseCallback):
         if getattr(self.model, "learning_starts", 0) > self.model.num_timesteps:
             raise ValueError("ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before learning_starts)")
         mean, log_std, _ = self._actor_parts()
+        if log_std is None and (self.residual_penalty > 0.0 or not self.learn_log_std):
+            raise ValueError("ResidualBurnIn residual_penalty and learn_log_std are SAC options (PPO has no critic of actions)")
+        if self.residual_penalty > 0.0:
+            self._hook = mean.register_forward_hook(self._penalize)
+        self._training = True
         if self.model.num_timesteps == 0:
             with torch.no_grad():
                 mean.weight.zero_()
@@ -169,7 +229,14 @@ class ResidualBurnIn(BaseCallback):
             self._set_frozen(False)
             if self.verbose:
                 print(f"ResidualBurnIn: actor unfrozen at {self.model.num_timesteps} steps")
+        if self.residual_penalty > 0.0 and self.model.num_timesteps >= self._next_q_scale:
+            self._estimate_q_scale()
+            self._next_q_scale = self.model.num_timesteps + self.q_scale_every
         return True
 
     def _on_training_end(self) -> None:
+        if self._hook is not None:
+            self._hook.remove()
+            self._hook = None
+        self._training = False
         self._set_frozen(False)  # a saved or resumed model trains as usual

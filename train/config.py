@@ -322,10 +322,13 @@ def validate(config: dict) -> dict:
         from snake_env.train.callbacks import ResidualBurnIn
 
         # SAC's default learning_starts is 100
-        burn_in = any(isinstance(c, ResidualBurnIn) for c in make_callbacks(config))
-        if burn_in and algo == "sac" and config.get("learning_starts", 100) != 0:
+        burn_ins = [c for c in make_callbacks(config) if isinstance(c, ResidualBurnIn)]
+        if burn_ins and algo == "sac" and config.get("learning_starts", 100) != 0:
             raise ConfigError(f"callback ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before "
                               f"learning_starts), got {config.get('learning_starts', 100)!r}")
+        if algo != "sac" and any(c.residual_penalty > 0.0 or not c.learn_log_std for c in burn_ins):
+            raise ConfigError(f"callback ResidualBurnIn residual_penalty and learn_log_std are SAC options, "
+                              f"not {algo}")
     return config
 
 

@@ -104,3 +104,87 @@ def test_ppo_learns_only_its_value_function_during_the_burn_in():
     after = [*policy.mlp_extractor.policy_net.parameters(), policy.log_std]
     assert all(torch.equal(a, b) for a, b in zip(actor_before, after))
     assert any(not torch.equal(a, b) for a, b in zip(value_before, policy.value_net.parameters()))
+
+
+def _penalized(learn_log_std=True, penalty=0.4):
+    """A SAC model past a 16-step burn-in and its callback, with the penalty configured."""
+    kwargs = {"burn_in_steps": 16, "log_std": -2.5, "residual_penalty": penalty, "learn_log_std": learn_log_std,
+              "q_scale_every": 8}
+    model, config = _sac()
+    config["callback"] = [{"snake_env.train.callbacks.ResidualBurnIn": kwargs}]
+    config = cfg.validate(config)
+    return model, config
+
+
+def test_residual_penalty_adds_the_gradient_of_td3bc_term():
+    model, config = _penalized()
+    callback = cfg.make_callbacks(config)[0]
+    model.learn(total_timesteps=48, callback=[callback])
+    assert callback.q_scale > 0.0  # estimated from the replay buffer during training
+    callback.on_training_start(locals(), globals())  # hook on again, as during training
+    actor = model.actor
+    with torch.no_grad():
+        actor.mu.weight.normal_(0.0, 0.5)  # corrections far from zero, where tanh bends
+    obs = torch.as_tensor(model.replay_buffer.sample(32).observations)
+    expected_mean = actor.mu(actor.latent_pi(actor.extract_features(obs, actor.features_extractor))).detach()
+
+    def grads(loss_of_mean):
+        actor.zero_grad()
+        mean, _, _ = actor.get_action_dist_params(obs)
+        assert torch.equal(mean.detach(), expected_mean)
+        loss_of_mean(mean).backward()
+        return [p.grad.clone() for p in actor.mu.parameters()]
+
+    hooked = grads(lambda mean: 0.0 * mean.sum())  # the hook alone supplies the gradient
+    callback._hook.remove()
+    callback._hook = None
+    coef = 0.4 * callback.q_scale
+    explicit = grads(lambda mean: coef * torch.tanh(mean).pow(2).mean())
+    assert all(torch.count_nonzero(g) > 0 for g in hooked)
+    for got, want in zip(hooked, explicit):
+        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-9)
+
+
+def test_q_scale_is_the_critics_mean_absolute_value_on_normalized_observations():
+    model, config = _penalized()
+    callback = cfg.make_callbacks(config)[0]
+    model.learn(total_timesteps=32, callback=[callback])
+    np.random.seed(3)  # the replay buffer samples with numpy's global generator
+    callback._estimate_q_scale()
+    np.random.seed(3)
+    raw = model.replay_buffer.sample(model.batch_size)  # no env: observations as stored, not normalized
+    obs = torch.as_tensor(model.get_vec_normalize_env().normalize_obs(raw.observations.numpy()))
+    with torch.no_grad():
+        expected = model.critic.q1_forward(obs, model.actor(obs, deterministic=True)).abs().mean()
+    assert callback.q_scale > 0.0
+    assert callback.q_scale == pytest.approx(float(expected), rel=1e-5)
+
+
+def test_fixed_log_std_stays_while_the_mean_learns():
+    model, config = _penalized(learn_log_std=False, penalty=0.0)
+    model.learn(total_timesteps=64, callback=cfg.make_callbacks(config))
+    actor = model.actor
+    assert torch.count_nonzero(actor.mu.weight) > 0  # past the burn-in the mean learned
+    assert torch.all(actor.log_std.bias == -2.5) and torch.count_nonzero(actor.log_std.weight) == 0
+    assert all(p.requires_grad for p in actor.parameters())  # released after training
+
+
+@pytest.mark.parametrize("kwargs, pattern", [
+    ({"residual_penalty": -1.0}, "residual_penalty must be a finite number >= 0"),
+    ({"residual_penalty": float("inf")}, "residual_penalty must be a finite number >= 0"),
+    ({"learn_log_std": "no"}, "learn_log_std must be true or false"),
+    ({"q_scale_every": 0}, "q_scale_every must be an integer >= 1"),
+])
+def test_bad_penalty_settings_are_one_line_errors(kwargs, pattern):
+    config = cfg.build_config("sac", ENV, overrides=["learning_starts=0"])
+    config["callback"] = [{"snake_env.train.callbacks.ResidualBurnIn": kwargs}]
+    with pytest.raises(cfg.ConfigError, match=pattern) as info:
+        cfg.validate(config)
+    assert "\n" not in str(info.value)
+
+
+def test_penalty_options_are_refused_for_ppo():
+    config = cfg.build_config("ppo", ENV)
+    config["callback"] = [{"snake_env.train.callbacks.ResidualBurnIn": {"residual_penalty": 0.4}}]
+    with pytest.raises(cfg.ConfigError, match="residual_penalty and learn_log_std are SAC options, not ppo"):
+        cfg.validate(config)
