@@ -51,6 +51,15 @@ arguments and the same per-step arithmetic:
   HER's relabelled goals would pair a correction with a baseline action it was
   not added to: use it with on-policy algorithms on the reach task.
 
+* ``goal_frame`` (:class:`GoalFrameObservation`): goal tasks only (Dict
+  observation): appends the goal relative to the CM in the snake's heading frame,
+  ``R(-theta_bar) (desired_goal - achieved_goal)`` (m; x ahead, y to the left), to
+  the ``observation`` entry. theta_bar, the mean link angle, is computed from the
+  observation (theta_1 from its heading entries plus the joint angles). The goal's
+  bearing is what a reaching policy needs and an MLP finds hard to compute from
+  world coordinates (a rotation by the heading). It is derived from
+  ``desired_goal``, so HER's relabelled goals would leave it stale: on-policy only.
+
 The train config selects them with the ``env_wrapper`` key (after RL Zoo's
 key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
 
@@ -69,7 +78,7 @@ from collections.abc import Mapping, Sequence
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode, VectorWrapper
+from gymnasium.vector import AutoresetMode, VectorObservationWrapper, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
 def _number(name, value, unit, minimum=0.0, strict=False) -> float:
@@ -111,12 +120,12 @@ def _phase_features(time: np.ndarray, omega: np.ndarray) -> np.ndarray:
     return np.stack([np.sin(angle), np.cos(angle)], axis=-1).reshape(*angle.shape[:-1], 2 * omega.size)
 
 
-def _extend_box(box: spaces.Space, extra: int) -> spaces.Space:
-    """``box`` with ``extra`` entries in [-1, 1] appended (to the ``observation`` entry of a Dict space)."""
+def _extend_box(box: spaces.Space, extra: int, bound: float = 1.0) -> spaces.Space:
+    """``box`` with ``extra`` entries in [-bound, bound] appended (to the ``observation`` entry of a Dict space)."""
     if isinstance(box, spaces.Dict):
-        return spaces.Dict({**box.spaces, "observation": _extend_box(box["observation"], extra)})
-    low = np.concatenate([box.low, -np.ones(extra, box.dtype)])
-    high = np.concatenate([box.high, np.ones(extra, box.dtype)])
+        return spaces.Dict({**box.spaces, "observation": _extend_box(box["observation"], extra, bound)})
+    low = np.concatenate([box.low, np.full(extra, -bound, box.dtype)])
+    high = np.concatenate([box.high, np.full(extra, bound, box.dtype)])
     return spaces.Box(low, high, dtype=box.dtype)
 
 
@@ -590,11 +599,62 @@ class SerpenoidResidualActionVector(VectorWrapper):
         return self._augment(obs), reward, terminated, truncated, info
 
 
+def _goal_frame_geometry(env) -> dict:
+    g = _geometry(env)
+    space = env.observation_space if not hasattr(env, "single_observation_space") else env.single_observation_space
+    if not isinstance(space, spaces.Dict) or not {"observation", "achieved_goal", "desired_goal"} <= set(space.spaces):
+        raise ValueError("goal_frame needs a goal task (Dict observation with observation, achieved_goal, "
+                         f"desired_goal), e.g. snake_env/SnakeReach5-v0; got {space}")
+    return g
+
+
+def _with_goal_frame(obs, g: dict):
+    """obs with R(-theta_bar) (desired_goal - achieved_goal) (m) appended to its ``observation`` entry;
+    theta_bar = theta_1 + (1/n) sum_j (n - j) phi_j, since theta_k = theta_1 + sum_{j<k} phi_j."""
+    o = np.asarray(obs["observation"])
+    n, phi = g["n_links"], g["phi"]
+    theta_1 = np.arctan2(o[..., phi.stop + 1], o[..., phi.stop])
+    theta_bar = theta_1 + o[..., phi].astype(np.float64) @ ((n - np.arange(1, n)) / n)
+    delta = np.asarray(obs["desired_goal"], np.float64) - np.asarray(obs["achieved_goal"], np.float64)
+    cos, sin = np.cos(theta_bar), np.sin(theta_bar)
+    ahead = cos * delta[..., 0] + sin * delta[..., 1]
+    left = -sin * delta[..., 0] + cos * delta[..., 1]
+    extra = np.stack([ahead, left], axis=-1).astype(o.dtype)
+    return {**obs, "observation": np.concatenate([o, extra], axis=-1)}
+
+
+class GoalFrameObservation(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Goal tasks: the goal relative to the CM in the heading frame (m) appended to ``observation``."""
+
+    def __init__(self, env: gym.Env):
+        gym.utils.RecordConstructorArgs.__init__(self)
+        super().__init__(env)
+        self._geometry = _goal_frame_geometry(env)
+        self.observation_space = _extend_box(env.observation_space, 2, np.inf)
+
+    def observation(self, observation):
+        return _with_goal_frame(observation, self._geometry)
+
+
+class GoalFrameObservationVector(VectorObservationWrapper):
+    """:class:`GoalFrameObservation` for a batched vector env (one row per sub-env)."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self._geometry = _goal_frame_geometry(env)
+        self.single_observation_space = _extend_box(env.single_observation_space, 2, np.inf)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+
+    def observations(self, observations):
+        return _with_goal_frame(observations, self._geometry)
+
+
 WRAPPERS = {
     "phase_observation": (PhaseObservation, PhaseObservationVector),
     "joint_target": (JointTargetAction, JointTargetActionVector),
     "cpg": (CPGAction, CPGActionVector),
     "serpenoid_residual": (SerpenoidResidualAction, SerpenoidResidualActionVector),
+    "goal_frame": (GoalFrameObservation, GoalFrameObservationVector),
 }
 
 

@@ -14,8 +14,8 @@ from gymnasium.vector import AutoresetMode
 import snake_env  # noqa: F401
 from snake_env.agents.search import load_params
 from snake_env.agents.serpenoid import SerpenoidController
-from snake_env.wrappers import (CPGAction, CPGActionVector, JointTargetAction, JointTargetActionVector,
-                                PhaseObservation, PhaseObservationVector, SerpenoidResidualAction,
+from snake_env.wrappers import (CPGAction, CPGActionVector, GoalFrameObservation, GoalFrameObservationVector,
+                                JointTargetAction, JointTargetActionVector, PhaseObservation, PhaseObservationVector, SerpenoidResidualAction,
                                 SerpenoidResidualActionVector, parse_env_wrapper, wrap_env, wrap_vector_env)
 
 ENV = "snake_env/Snake3-v1"
@@ -135,7 +135,7 @@ def test_phase_clock_runs_with_env_time_and_restarts_on_autoreset():
 
 
 @pytest.mark.parametrize("spec, message", [
-    ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'joint_target', 'phase_observation', 'serpenoid_residual'], "
+    ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'goal_frame', 'joint_target', 'phase_observation', 'serpenoid_residual'], "
      "got 'joint_targets'"),
     ("torque_mode", "env_wrapper name must be one of"),
     ({"joint_target": {"kp": -1.0}}, "kp must be a finite number >= 0"),
@@ -323,3 +323,66 @@ def test_serpenoid_residual_refuses_a_task_without_a_baseline(monkeypatch):
     monkeypatch.setattr(env.unwrapped, "task", type("Dance", (), {"name": "dance"})())
     with pytest.raises(ValueError, match="needs a task with a baseline controller.*got task 'dance'"):
         SerpenoidResidualAction(env)
+
+
+def test_goal_frame_is_the_goal_rotated_into_the_mean_heading_frame():
+    """Cross-check: theta_bar from the env's state (mean of the link angles) against the wrapper's
+    reconstruction from the observation; the appended vector keeps the goal distance (a rotation)
+    and its angle is the goal's bearing from theta_bar."""
+    from snake_env.tasks.base import mean_heading
+
+    env = wrap_env(gym.make("snake_env/SnakeReach5-v0"), ["serpenoid_residual", "goal_frame"])
+    space = env.observation_space
+    assert space["observation"].shape == (16,) and np.isinf(space["observation"].high[-2:]).all()
+    obs, _ = env.reset(seed=3)
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(80):
+        assert space.contains(obs)
+        q = env.unwrapped._batch.q[0]
+        theta_bar = mean_heading(q, 5)
+        delta = obs["desired_goal"] - obs["achieved_goal"]
+        bearing = math.atan2(delta[1], delta[0]) - theta_bar
+        ahead, left = obs["observation"][-2:]
+        np.testing.assert_allclose([ahead, left], np.hypot(*delta) * np.array([math.cos(bearing), math.sin(bearing)]),
+                                   atol=1e-5)
+        obs, _, terminated, truncated, info = env.step(rng.uniform(-1, 1, 4).astype(np.float32))
+        checked += 1
+        if terminated or truncated:
+            break
+        assert math.hypot(*obs["observation"][-2:]) == pytest.approx(info["goal_distance"], rel=1e-5)
+    assert checked >= 40
+
+
+def test_goal_frame_vector_matches_single_envs_and_passes_the_env_checker():
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "wrapped env" and unbounded-Box advice
+        check_env(GoalFrameObservation(gym.make("snake_env/SnakeReach5-v0")), skip_render_check=True)
+    spec = ["serpenoid_residual", "goal_frame"]
+    single = wrap_env(gym.make("snake_env/SnakeReach5-v0"), spec)
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=1,
+                                          vectorization_mode="vector_entry_point"), spec)
+    single_obs, _ = single.reset(seed=4)
+    obs, _ = vector.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        for key in single_obs:
+            np.testing.assert_allclose(obs[key][0], single_obs[key], rtol=0, atol=1e-6)
+        action = rng.uniform(-1, 1, 4).astype(np.float32)
+        single_obs, *_ = single.step(action)
+        obs, *_ = vector.step(action[None])
+
+
+def test_goal_frame_refuses_a_task_without_goals():
+    with pytest.raises(ValueError, match="goal_frame needs a goal task"):
+        GoalFrameObservation(gym.make("snake_env/Snake5-v1"))
+
+
+def test_train_config_refuses_goal_reading_wrappers_with_her():
+    from snake_env.train import config as cfg
+
+    assert cfg.build_config("sac", "snake_env/SnakeReach5-v0")["replay_buffer_class"] == "HerReplayBuffer"
+    with pytest.raises(cfg.ConfigError, match=r"env_wrapper \['goal_frame'\] does not combine with .*HerReplayBuffer"):
+        cfg.build_config("sac", "snake_env/SnakeReach5-v0", overrides=["env_wrapper=goal_frame"])
