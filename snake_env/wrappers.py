@@ -78,7 +78,7 @@ from collections.abc import Mapping, Sequence
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.vector import AutoresetMode, VectorObservationWrapper, VectorWrapper
+from gymnasium.vector import AutoresetMode, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
 def _number(name, value, unit, minimum=0.0, strict=False) -> float:
@@ -636,8 +636,9 @@ class GoalFrameObservation(gym.ObservationWrapper, gym.utils.RecordConstructorAr
         return _with_goal_frame(observation, self._geometry)
 
 
-class GoalFrameObservationVector(VectorObservationWrapper):
-    """:class:`GoalFrameObservation` for a batched vector env (one row per sub-env)."""
+class GoalFrameObservationVector(VectorWrapper):
+    """:class:`GoalFrameObservation` for a batched vector env (one row per sub-env), also on the
+    ``final_obs`` of same-step autoreset (which gymnasium's VectorObservationWrapper refuses)."""
 
     def __init__(self, env):
         super().__init__(env)
@@ -645,8 +646,18 @@ class GoalFrameObservationVector(VectorObservationWrapper):
         self.single_observation_space = _extend_box(env.single_observation_space, 2, np.inf)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
-    def observations(self, observations):
-        return _with_goal_frame(observations, self._geometry)
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        return _with_goal_frame(obs, self._geometry), info
+
+    def step(self, actions):
+        obs, reward, terminated, truncated, info = self.env.step(actions)
+        if "final_obs" in info:  # same-step autoreset: one Dict observation (or None) per sub-env
+            final = info["final_obs"].copy()
+            for i in np.flatnonzero(info.get("_final_obs", np.zeros(self.num_envs, bool))):
+                final[i] = _with_goal_frame(final[i], self._geometry)
+            info = {**info, "final_obs": final}
+        return _with_goal_frame(obs, self._geometry), reward, terminated, truncated, info
 
 
 WRAPPERS = {

@@ -375,6 +375,24 @@ def test_goal_frame_vector_matches_single_envs_and_passes_the_env_checker():
         obs, *_ = vector.step(action[None])
 
 
+def test_goal_frame_vector_extends_the_final_obs_of_same_step_autoreset():
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                                          autoreset_mode=AutoresetMode.SAME_STEP, max_episode_steps=5),
+                             ["serpenoid_residual", "goal_frame"])
+    assert vector.single_observation_space["observation"].shape == (16,)
+    vector.reset(seed=0)
+    for _ in range(5):
+        obs, _, _, truncated, info = vector.step(np.zeros((2, 4), np.float32))
+    assert truncated.all()
+    for i in range(2):
+        final = info["final_obs"][i]
+        assert vector.single_observation_space.contains(final)
+        assert math.hypot(*final["observation"][-2:]) == pytest.approx(info["goal_distance"][i], rel=1e-5)
+    # the new episodes' observations are extended too, from their own goals
+    np.testing.assert_allclose(np.hypot(*obs["observation"][:, -2:].T),
+                               np.linalg.norm(obs["desired_goal"] - obs["achieved_goal"], axis=-1), rtol=1e-5)
+
+
 def test_goal_frame_refuses_a_task_without_goals():
     with pytest.raises(ValueError, match="goal_frame needs a goal task"):
         GoalFrameObservation(gym.make("snake_env/Snake5-v1"))

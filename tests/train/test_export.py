@@ -232,6 +232,9 @@ REACH = "snake_env/SnakeReach5-v0"
 @pytest.mark.parametrize("algo, extra", [
     # the shipped PPO entry: residual on goal seeking, observations normalized per key
     ("ppo", ["--set", "n_steps=32", "--set", "batch_size=32", "--set", "n_epochs=1"]),
+    # with the goal in the heading frame appended (opt-in goal_frame; trains on same-step autoreset)
+    ("ppo", ["--set", "n_steps=32", "--set", "batch_size=32", "--set", "n_epochs=1",
+             "--set", "env_wrapper=[serpenoid_residual, goal_frame]"]),
     # SAC + HER, no normalization (the shipped SAC entry)
     ("sac", ["--set", "learning_starts=120", "--set", "buffer_size=2000", "--set", "batch_size=32"]),
 ])
