@@ -132,6 +132,41 @@ def _extend_box(box: spaces.Space, extra: int, bound: float = 1.0) -> spaces.Spa
 REFERENCE_RATES = ("difference", "zero")
 
 
+class _ClockRestarts:
+    """Which sub-envs' clocks (phase, oscillator, gait) restart after a vector step.
+
+    Next-step autoreset resets a sub-env on the call after its episode ended, so its
+    clock restarts then; same-step autoreset resets it in the call that ended it, whose
+    ``info["final_obs"]`` still holds the episode's last observation (see
+    :func:`_map_final_obs`)."""
+
+    def __init__(self, env):
+        mode = env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+        self.same_step = mode == AutoresetMode.SAME_STEP
+        self._pending = np.zeros(env.num_envs, bool)
+
+    def reset(self, mask=None) -> None:
+        self._pending[slice(None) if mask is None else np.asarray(mask, dtype=bool)] = False
+
+    def after_step(self, done: np.ndarray) -> np.ndarray:
+        """Boolean rows whose clock restarts with the observation this step returns."""
+        if self.same_step:
+            return np.asarray(done, bool).copy()
+        restart, self._pending = self._pending, np.asarray(done, bool).copy()
+        return restart
+
+
+def _map_final_obs(info: dict, rows: np.ndarray, transform) -> dict:
+    """info with ``final_obs[i]`` replaced by ``transform(final_obs[i], i)`` for the rows
+    given (same-step autoreset: the last observation of each episode that ended)."""
+    if "final_obs" not in info:
+        return info
+    final = info["final_obs"].copy()
+    for i in np.flatnonzero(rows):
+        final[i] = transform(final[i], i)
+    return {**info, "final_obs": final}
+
+
 class _PDSettings:
     """Validated gains of the joint-target PD (shared by the single and vector wrapper)."""
 
@@ -215,13 +250,14 @@ class JointTargetActionVector(VectorWrapper):
         self._obs = None
         self._previous = None
         self._first = np.ones(self.num_envs, bool)  # rows on an episode's first step: reference rate 0
-        self._pending_reset = np.zeros(self.num_envs, bool)
+        self._restarts = _ClockRestarts(env)
 
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
         self._obs = obs
         mask = (options or {}).get("reset_mask")
         self._first[slice(None) if mask is None else np.asarray(mask, dtype=bool)] = True
+        self._restarts.reset(mask)
         return obs, info
 
     def step(self, actions):
@@ -234,13 +270,7 @@ class JointTargetActionVector(VectorWrapper):
         self._obs = obs
         self._previous = target
         self._first[:] = False
-        done = np.asarray(terminated | truncated)
-        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
-        if mode == AutoresetMode.NEXT_STEP:
-            self._first |= self._pending_reset  # reset by this call: the next step is their first
-            self._pending_reset = done.copy()
-        else:
-            self._first |= done
+        self._first |= self._restarts.after_step(np.asarray(terminated | truncated))
         return obs, reward, terminated, truncated, info
 
 
@@ -288,7 +318,7 @@ class PhaseObservationVector(VectorWrapper):
         self.single_observation_space = _extend_box(env.single_observation_space, 2 * self.omega.size)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._steps = np.zeros(self.num_envs, np.int64)
-        self._pending_reset = np.zeros(self.num_envs, bool)
+        self._restarts = _ClockRestarts(env)
 
     def _augment(self, obs, steps):
         phase = _phase_features(steps * self.dt, self.omega).astype(obs.dtype)
@@ -297,31 +327,18 @@ class PhaseObservationVector(VectorWrapper):
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
         mask = (options or {}).get("reset_mask")
-        if mask is None:
-            self._steps[:] = 0
-            self._pending_reset[:] = False
-        else:
-            mask = np.asarray(mask, dtype=bool)
-            self._steps[mask] = 0
-            self._pending_reset[mask] = False
+        self._steps[slice(None) if mask is None else np.asarray(mask, dtype=bool)] = 0
+        self._restarts.reset(mask)
         return self._augment(obs, self._steps), info
 
     def step(self, actions):
         obs, reward, terminated, truncated, info = self.env.step(actions)
         done = np.asarray(terminated | truncated)
-        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
         self._steps += 1
-        if mode == AutoresetMode.NEXT_STEP:
-            # the rows done on the previous call were reset by this one
-            self._steps[self._pending_reset] = 0
-            self._pending_reset = done.copy()
-        elif mode == AutoresetMode.SAME_STEP and done.any():
-            if "final_obs" in info:
-                final = info["final_obs"].copy()
-                for i in np.flatnonzero(done):
-                    final[i] = self._augment(np.asarray(final[i]), self._steps[i])
-                info = {**info, "final_obs": final}
-            self._steps[done] = 0
+        restart = self._restarts.after_step(done)
+        if self._restarts.same_step:
+            info = _map_final_obs(info, done, lambda final, i: self._augment(np.asarray(final), self._steps[i]))
+        self._steps[restart] = 0
         return self._augment(obs, self._steps), reward, terminated, truncated, info
 
 
@@ -447,14 +464,14 @@ class CPGActionVector(VectorWrapper):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._obs = None
         self._phase = np.zeros(self.num_envs)
-        self._pending_reset = np.zeros(self.num_envs, bool)
+        self._restarts = _ClockRestarts(env)
 
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
         mask = (options or {}).get("reset_mask")
         rows = slice(None) if mask is None else np.asarray(mask, dtype=bool)
         self._phase[rows] = 0.0
-        self._pending_reset[rows] = False
+        self._restarts.reset(mask)
         self._obs = obs
         return _with_phase(obs, self._phase), info
 
@@ -467,17 +484,10 @@ class CPGActionVector(VectorWrapper):
         self._obs = obs
         self._phase = phase
         done = np.asarray(terminated | truncated)
-        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
-        if mode == AutoresetMode.NEXT_STEP:
-            self._phase[self._pending_reset] = 0.0  # reset by this call
-            self._pending_reset = done.copy()
-        elif mode == AutoresetMode.SAME_STEP and done.any():
-            if "final_obs" in info:
-                final = info["final_obs"].copy()
-                for i in np.flatnonzero(done):
-                    final[i] = _with_phase(final[i], self._phase[i])
-                info = {**info, "final_obs": final}
-            self._phase[done] = 0.0
+        restart = self._restarts.after_step(done)
+        if self._restarts.same_step:
+            info = _map_final_obs(info, done, lambda final, i: _with_phase(final, self._phase[i]))
+        self._phase[restart] = 0.0
         return _with_phase(obs, self._phase), reward, terminated, truncated, info
 
 
@@ -563,7 +573,7 @@ class SerpenoidResidualActionVector(VectorWrapper):
         self.single_observation_space = _extend_box(env.single_observation_space, 2)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._obs = None
-        self._pending_reset = np.zeros(self.num_envs, bool)
+        self._restarts = _ClockRestarts(env)
 
     def _augment(self, obs):
         return _with_phase(obs, self.controller.phase)
@@ -572,7 +582,7 @@ class SerpenoidResidualActionVector(VectorWrapper):
         obs, info = self.env.reset(seed=seed, options=options)
         mask = (options or {}).get("reset_mask")
         self.controller.reset(mask)
-        self._pending_reset[slice(None) if mask is None else np.asarray(mask, dtype=bool)] = False
+        self._restarts.reset(mask)
         self._obs = obs
         return self._augment(obs), info
 
@@ -585,17 +595,10 @@ class SerpenoidResidualActionVector(VectorWrapper):
             np.clip(base + correction, -1.0, 1.0).astype(np.float32))
         self._obs = obs
         done = np.asarray(terminated | truncated)
-        mode = self.env.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
-        if mode == AutoresetMode.NEXT_STEP:
-            self.controller.reset(self._pending_reset)  # reset by this call
-            self._pending_reset = done.copy()
-        elif mode == AutoresetMode.SAME_STEP and done.any():
-            if "final_obs" in info:
-                final = info["final_obs"].copy()
-                for i in np.flatnonzero(done):
-                    final[i] = _with_phase(final[i], self.controller.phase[i])
-                info = {**info, "final_obs": final}
-            self.controller.reset(done)
+        restart = self._restarts.after_step(done)
+        if self._restarts.same_step:
+            info = _map_final_obs(info, done, lambda final, i: _with_phase(final, self.controller.phase[i]))
+        self.controller.reset(restart)
         return self._augment(obs), reward, terminated, truncated, info
 
 
@@ -652,11 +655,9 @@ class GoalFrameObservationVector(VectorWrapper):
 
     def step(self, actions):
         obs, reward, terminated, truncated, info = self.env.step(actions)
-        if "final_obs" in info:  # same-step autoreset: one Dict observation (or None) per sub-env
-            final = info["final_obs"].copy()
-            for i in np.flatnonzero(info.get("_final_obs", np.zeros(self.num_envs, bool))):
-                final[i] = _with_goal_frame(final[i], self._geometry)
-            info = {**info, "final_obs": final}
+        # same-step autoreset: one Dict observation (or None) per sub-env
+        info = _map_final_obs(info, info.get("_final_obs", np.zeros(self.num_envs, bool)),
+                              lambda final, i: _with_goal_frame(final, self._geometry))
         return _with_goal_frame(obs, self._geometry), reward, terminated, truncated, info
 
 

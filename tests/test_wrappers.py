@@ -134,6 +134,35 @@ def test_phase_clock_runs_with_env_time_and_restarts_on_autoreset():
         np.testing.assert_allclose(np.array(phases), expected, atol=1e-6)
 
 
+
+@pytest.mark.parametrize("spec", ["cpg", "serpenoid_residual"])
+def test_clock_wrappers_restart_on_same_step_autoreset_and_clock_the_final_obs(spec):
+    """Same-step autoreset (next-step: ``test_clocked_action_wrappers_...``): a vector row's appended clock (sin, cos
+    of the oscillator's or the gait's phase) follows a single env's episode, ``final_obs`` keeps
+    the episode's last clock and the returned observation restarts it."""
+    mode = AutoresetMode.SAME_STEP
+    single = wrap_env(gym.make(ENV, max_episode_steps=5), spec)
+    obs, _ = single.reset(seed=0)
+    clock = [obs[-2:].copy()]  # clock[k]: after k steps of an episode, constant action
+    action = np.zeros(single.action_space.shape, np.float32)
+    for _ in range(5):
+        obs, *_ = single.step(action)
+        clock.append(obs[-2:].copy())
+    vec = wrap_vector_env(gym.make_vec(ENV, num_envs=2, vectorization_mode="vector_entry_point",
+                                       max_episode_steps=5, autoreset_mode=mode), spec)
+    vec.reset(seed=0)
+    seen = []
+    for _ in range(7):
+        obs, _, _, truncated, info = vec.step(np.zeros((2, *action.shape), np.float32))
+        seen.append(obs[:, -2:].copy())
+        if truncated.any():
+            assert truncated.all()
+            for i in range(2):
+                np.testing.assert_allclose(info["final_obs"][i][-2:], clock[5], atol=1e-6)
+    for got, k in zip(seen, [1, 2, 3, 4, 0, 1, 2]):
+        np.testing.assert_allclose(got, [clock[k], clock[k]], atol=1e-6)
+
+
 @pytest.mark.parametrize("spec, message", [
     ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'goal_frame', 'joint_target', 'phase_observation', 'serpenoid_residual'], "
      "got 'joint_targets'"),
