@@ -123,7 +123,11 @@ class ResidualBurnIn(BaseCallback):
     tanh(mean) the deterministic correction and mean|Q| the critic's mean absolute value
     on a replay batch (refreshed every ``q_scale_every`` env steps), so the weight is free
     of the reward's scale (TD3+BC's alpha = 2.5 is a weight of 0.4). ``learn_log_std:
-    false`` keeps the exploration noise at ``log_std`` for the whole run.
+    false`` keeps the exploration noise at ``log_std`` for the whole run. ``actor_lr_scale``
+    runs the actor's optimizer at that fraction of the learning rate (the critic and the
+    entropy coefficient keep it): the two-timescale rule of actor-critic methods (Konda and
+    Tsitsiklis 2000; TD3's delayed policy updates, Fujimoto et al. 2018, sec. 5.2), so the
+    critic can re-fit the actions of the changed policy before the actor moves further.
 
     Args:
         burn_in_steps: env steps with the actor frozen, an integer >= 0.
@@ -131,11 +135,14 @@ class ResidualBurnIn(BaseCallback):
             [-10, 2] (SB3 clips SAC's log std to [-20, 2]); PPO keeps its ``log_std_init``.
         residual_penalty: SAC only: weight of the penalty on the correction, >= 0 (0: none).
         learn_log_std: SAC only: whether the log std learns after the burn-in.
+        actor_lr_scale: SAC only: the actor's learning rate as a fraction of the
+            configured one, in (0, 1].
         q_scale_every: env steps between two estimates of mean|Q|, an integer >= 1.
     """
 
     def __init__(self, burn_in_steps: int = 50_000, log_std: float = -3.0, residual_penalty: float = 0.0,
-                 learn_log_std: bool = True, q_scale_every: int = 1000, verbose: int = 0):
+                 learn_log_std: bool = True, q_scale_every: int = 1000, actor_lr_scale: float = 1.0,
+                 verbose: int = 0):
         super().__init__(verbose)
         if isinstance(burn_in_steps, bool) or not isinstance(burn_in_steps, int) or burn_in_steps < 0:
             raise ValueError(f"ResidualBurnIn burn_in_steps must be an integer >= 0, got {burn_in_steps!r}")
@@ -148,7 +155,11 @@ class ResidualBurnIn(BaseCallback):
             raise ValueError(f"ResidualBurnIn learn_log_std must be true or false, got {learn_log_std!r}")
         if isinstance(q_scale_every, bool) or not isinstance(q_scale_every, int) or q_scale_every < 1:
             raise ValueError(f"ResidualBurnIn q_scale_every must be an integer >= 1, got {q_scale_every!r}")
+        if (isinstance(actor_lr_scale, bool) or not isinstance(actor_lr_scale, (int, float))
+                or not 0.0 < actor_lr_scale <= 1.0):
+            raise ValueError(f"ResidualBurnIn actor_lr_scale must be a number in (0, 1], got {actor_lr_scale!r}")
         self.burn_in_steps = burn_in_steps
+        self.actor_lr_scale = float(actor_lr_scale)
         self.log_std = float(log_std)
         self.residual_penalty = float(residual_penalty)
         self.learn_log_std = learn_log_std
@@ -156,6 +167,7 @@ class ResidualBurnIn(BaseCallback):
         self.q_scale = 0.0  # mean |Q| of the last estimate; the penalty waits for the first one
         self._next_q_scale = 0
         self._hook = None
+        self._lr_hooks = []
         self._training = False
         self._frozen = False
 
@@ -189,6 +201,16 @@ class ResidualBurnIn(BaseCallback):
             extra = 2.0 * coef * squashed * (1.0 - squashed**2) / squashed.numel()
             mean.register_hook(lambda grad: grad + extra)
 
+    def _scale_actor_lr(self, optimizer, args, kwargs) -> None:
+        """Step pre-hook: SB3 sets every optimizer's rate from the schedule before each
+        train() call; the actor steps at actor_lr_scale of it (restored after the step)."""
+        for group in optimizer.param_groups:
+            group["lr"] *= self.actor_lr_scale
+
+    def _restore_actor_lr(self, optimizer, args, kwargs) -> None:
+        for group in optimizer.param_groups:
+            group["lr"] /= self.actor_lr_scale
+
     def _estimate_q_scale(self) -> None:
         """mean |Q1(s, a_det(s))| over a replay batch (TD3+BC's normalizer)."""
         import torch
@@ -210,10 +232,15 @@ class ResidualBurnIn(BaseCallback):
         if getattr(self.model, "learning_starts", 0) > self.model.num_timesteps:
             raise ValueError("ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before learning_starts)")
         mean, log_std, _ = self._actor_parts()
-        if log_std is None and (self.residual_penalty > 0.0 or not self.learn_log_std):
-            raise ValueError("ResidualBurnIn residual_penalty and learn_log_std are SAC options (PPO has no critic of actions)")
+        if log_std is None and (self.residual_penalty > 0.0 or not self.learn_log_std or self.actor_lr_scale != 1.0):
+            raise ValueError("ResidualBurnIn residual_penalty, learn_log_std and actor_lr_scale are SAC options "
+                             "(PPO has no critic of actions)")
         if self.residual_penalty > 0.0:
             self._hook = mean.register_forward_hook(self._penalize)
+        if self.actor_lr_scale != 1.0:
+            optimizer = self.model.actor.optimizer
+            self._lr_hooks = [optimizer.register_step_pre_hook(self._scale_actor_lr),
+                              optimizer.register_step_post_hook(self._restore_actor_lr)]
         self._training = True
         if self.model.num_timesteps == 0:
             with torch.no_grad():
@@ -238,5 +265,8 @@ class ResidualBurnIn(BaseCallback):
         if self._hook is not None:
             self._hook.remove()
             self._hook = None
+        for handle in self._lr_hooks:
+            handle.remove()
+        self._lr_hooks = []
         self._training = False
         self._set_frozen(False)  # a saved or resumed model trains as usual

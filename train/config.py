@@ -331,9 +331,10 @@ def validate(config: dict) -> dict:
         if burn_ins and algo == "sac" and config.get("learning_starts", 100) != 0:
             raise ConfigError(f"callback ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before "
                               f"learning_starts), got {config.get('learning_starts', 100)!r}")
-        if algo != "sac" and any(c.residual_penalty > 0.0 or not c.learn_log_std for c in burn_ins):
-            raise ConfigError(f"callback ResidualBurnIn residual_penalty and learn_log_std are SAC options, "
-                              f"not {algo}")
+        if algo != "sac" and any(c.residual_penalty > 0.0 or not c.learn_log_std or c.actor_lr_scale != 1.0
+                                 for c in burn_ins):
+            raise ConfigError(f"callback ResidualBurnIn residual_penalty, learn_log_std and actor_lr_scale are SAC "
+                              f"options, not {algo}")
     return config
 
 

@@ -174,6 +174,8 @@ def test_fixed_log_std_stays_while_the_mean_learns():
     ({"residual_penalty": float("inf")}, "residual_penalty must be a finite number >= 0"),
     ({"learn_log_std": "no"}, "learn_log_std must be true or false"),
     ({"q_scale_every": 0}, "q_scale_every must be an integer >= 1"),
+    ({"actor_lr_scale": 0.0}, r"actor_lr_scale must be a number in \(0, 1\]"),
+    ({"actor_lr_scale": 2}, r"actor_lr_scale must be a number in \(0, 1\]"),
 ])
 def test_bad_penalty_settings_are_one_line_errors(kwargs, pattern):
     config = cfg.build_config("sac", ENV, overrides=["learning_starts=0"])
@@ -186,5 +188,40 @@ def test_bad_penalty_settings_are_one_line_errors(kwargs, pattern):
 def test_penalty_options_are_refused_for_ppo():
     config = cfg.build_config("ppo", ENV)
     config["callback"] = [{"snake_env.train.callbacks.ResidualBurnIn": {"residual_penalty": 0.4}}]
-    with pytest.raises(cfg.ConfigError, match="residual_penalty and learn_log_std are SAC options, not ppo"):
+    with pytest.raises(cfg.ConfigError, match="residual_penalty, learn_log_std and actor_lr_scale are SAC options, not ppo"):
         cfg.validate(config)
+    config["callback"] = [{"snake_env.train.callbacks.ResidualBurnIn": {"actor_lr_scale": 0.5}}]
+    with pytest.raises(cfg.ConfigError, match="actor_lr_scale are SAC options, not ppo"):
+        cfg.validate(config)
+
+
+def _first_actor_step(actor_lr_scale):
+    """Actor and critic parameters before and after SAC's first gradient step (burn-in 0)."""
+    model, _ = _sac()
+    callback = ResidualBurnIn(burn_in_steps=0, log_std=-2.5, actor_lr_scale=actor_lr_scale)
+    with torch.no_grad():  # what the callback's start does on a fresh model, so "before" is the start
+        for layer in (model.actor.mu, model.actor.log_std):
+            layer.weight.zero_()
+        model.actor.mu.bias.zero_()
+        model.actor.log_std.bias.fill_(-2.5)
+    before = (_actor_state(model), {k: v.clone() for k, v in model.critic.state_dict().items()})
+    np.random.seed(0)  # the replay buffer samples with numpy's global generator
+    model.learn(total_timesteps=2, callback=[callback])  # one step of the 2 envs, then one gradient step
+    return before, (_actor_state(model), model.critic.state_dict(), model.actor.optimizer.param_groups[0]["lr"])
+
+
+def test_actor_lr_scale_scales_only_the_actors_steps():
+    """Adam's step is proportional to its rate, so at actor_lr_scale 0.25 each actor
+    parameter moves a quarter as far as at 1.0, the critic moves the same, and the rate
+    the optimizer reports is restored after each step."""
+    (actor0, critic0), (actor1, critic1, lr1) = _first_actor_step(1.0)
+    (actor0_s, critic0_s), (actor1_s, critic1_s, lr_s) = _first_actor_step(0.25)
+    for key in actor0:
+        torch.testing.assert_close(actor0_s[key], actor0[key])
+        full, scaled = actor1[key] - actor0[key], actor1_s[key] - actor0_s[key]
+        if torch.count_nonzero(full):
+            torch.testing.assert_close(scaled, 0.25 * full, rtol=1e-4, atol=1e-7)
+    assert any(torch.count_nonzero(actor1[k] - actor0[k]) for k in actor0)
+    for key in critic0:
+        torch.testing.assert_close(critic1_s[key], critic1[key])
+    assert lr_s == lr1
