@@ -24,17 +24,25 @@ outer loop steers the snake by the joint offset gamma, which turns it
 gamma is clipped to +-``max_offset``. All read only the observation
 (documented layouts of the tasks), no gymnasium import; actions are torques
 in units of ``max_torque``, batched over a leading axis.
+
+:func:`make_baseline` builds a task's baseline with the settings of
+``configs/baselines.yaml`` for its number of links (found by
+:mod:`snake_env.agents.baseline_search`); a task and n without an entry use the
+constructor defaults, tuned on Snake5.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
+import yaml
 
 from snake_env.agents.serpenoid import SerpenoidParams, joint_slices
 
 TURN_GAIN = 9.0  # rad/s of yaw rate per rad of joint offset, measured on Snake5 with its searched gait
+BASELINE_SETTINGS = Path(__file__).resolve().parent.parent / "configs" / "baselines.yaml"
 
 
 def _check_positive(**values) -> None:
@@ -174,7 +182,7 @@ class GoalSeekingController(SteeredSerpenoid):
     gamma = s k_theta (bearing) steers, s = +-1 the direction of travel (a
     backwards-moving snake turns the other way for the same offset; the bearing is
     taken from the tail when going backwards). The minimum turning radius is
-    R = gait_speed / (G max_offset) (G = :data:`TURN_GAIN`); a goal inside the
+    R = gait_speed / (G max_offset) (G = ``turn_gain``, default :data:`TURN_GAIN`); a goal inside the
     turning circle on its side, x_b^2 + (|y_b| - R)^2 < R^2, is reached by no
     turn, so the snake backs away from it with gamma = 0 until the goal is
     ``hysteresis`` R from that circle's centre. (Turning while backing away, towards
@@ -185,12 +193,13 @@ class GoalSeekingController(SteeredSerpenoid):
 
     def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
                  include_position: bool = False, gain: float = 0.5, max_offset: float = 0.3,
-                 hysteresis: float = 1.2):
+                 hysteresis: float = 1.2, turn_gain: float = TURN_GAIN):
         super().__init__(params, n_links, max_torque, dt, num_envs, include_position, gain, 1.0, max_offset)
-        _check_positive(gait_speed=gait_speed, hysteresis=hysteresis)
+        _check_positive(gait_speed=gait_speed, hysteresis=hysteresis, turn_gain=turn_gain)
         if hysteresis < 1.0:
             raise ValueError(f"hysteresis must be >= 1 (turning radii), got {hysteresis!r}")
-        self.turn_radius = float(gait_speed) / (TURN_GAIN * self.max_offset)  # m
+        self.turn_gain = float(turn_gain)  # G (rad/s per rad of offset)
+        self.turn_radius = float(gait_speed) / (self.turn_gain * self.max_offset)  # m
         self.hysteresis = float(hysteresis)
         self.backing_away = np.zeros(num_envs, bool)
 
@@ -236,3 +245,45 @@ class GoalSeekingController(SteeredSerpenoid):
 
 # task name -> its steered baseline (``snake-eval --baseline`` and the ``serpenoid_residual`` wrapper)
 TASK_BASELINES = {"path": LineOfSightController, "command": SteeringController, "reach": GoalSeekingController}
+# the settings configs/baselines.yaml may give per task and n (the rest is geometry or the gait)
+TUNABLE_SETTINGS = {"path": ("gain", "lookahead", "max_offset", "speed_scale"),
+                    "command": ("gain", "max_offset"),
+                    "reach": ("gain", "max_offset", "hysteresis", "turn_gain")}
+
+
+def load_baseline_settings(path=BASELINE_SETTINGS) -> dict:
+    """``{task: {n_links: {"settings": {...}, "search": {...}}}}`` from ``path``; {} if it does not exist."""
+    path = Path(path)
+    data = (yaml.safe_load(path.read_text()) if path.is_file() else None) or {}
+    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+        raise ValueError(f"{path} must map a task name to {{n_links: {{settings: {{name: value}}}}}}")
+    return data
+
+
+def baseline_settings(task: str, n_links: int, path=BASELINE_SETTINGS) -> dict:
+    """The ``task`` baseline's settings for ``n_links`` links from ``path`` (the ``settings`` of
+    ``{task: {n: {settings: {name: value}}}}``); {} when there is no entry (the constructor defaults)."""
+    if task not in TASK_BASELINES:
+        raise ValueError(f"task must be one of {sorted(TASK_BASELINES)}, got {task!r}")
+    entry = load_baseline_settings(path).get(task, {}).get(int(n_links))
+    if entry is None:
+        return {}
+    entry = entry.get("settings") if isinstance(entry, dict) else None
+    if not isinstance(entry, dict):
+        raise ValueError(f"{path}: {task} n_links={n_links} needs a mapping 'settings' of setting: value")
+    unknown = sorted(set(entry) - set(TUNABLE_SETTINGS[task]))
+    if unknown:
+        raise ValueError(f"{path}: {task} n_links={n_links} has unknown setting {unknown[0]!r}; allowed: "
+                         f"{list(TUNABLE_SETTINGS[task])}")
+    for name, value in entry.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{path}: {task} n_links={n_links} setting {name!r} must be a number, got {value!r}")
+    return {name: float(value) for name, value in entry.items()}
+
+
+def make_baseline(task: str, params: SerpenoidParams, gait_speed: float, n_links: int, max_torque: float,
+                  dt: float, num_envs: int = 1, include_position: bool = False, settings_path=BASELINE_SETTINGS):
+    """The ``task``'s baseline controller with its settings for ``n_links`` (:func:`baseline_settings`)."""
+    settings = baseline_settings(task, n_links, settings_path)
+    return TASK_BASELINES[task](params, n_links, max_torque, dt, gait_speed=float(gait_speed), num_envs=num_envs,
+                                include_position=include_position, **settings)

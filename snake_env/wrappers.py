@@ -494,8 +494,9 @@ class CPGActionVector(VectorWrapper):
 def _residual_settings(env, scale, gait, num_envs: int):
     """(scale, baseline controller) for the residual wrappers: the task's baseline of
     ``snake-eval --baseline`` (forward: the searched serpenoid of ``gait``, default this
-    env's id; path: line-of-sight guidance; command: the steered serpenoid; reach: goal seeking)."""
-    from snake_env.agents.path_following import TASK_BASELINES
+    env's id; path: line-of-sight guidance; command: the steered serpenoid; reach: goal seeking,
+    with the settings of ``configs/baselines.yaml`` for the env's n)."""
+    from snake_env.agents.path_following import TASK_BASELINES, make_baseline
     from snake_env.agents.search import gait_for_links, load_params
     from snake_env.agents.serpenoid import SerpenoidController
 
@@ -522,7 +523,7 @@ def _residual_settings(env, scale, gait, num_envs: int):
     params, speed = gait_for_links(g["n_links"])
     if speed is None:
         raise ValueError(f"the serpenoid gait for n_links={g['n_links']} has no search.mean_forward_velocity")
-    return scale, TASK_BASELINES[task](params, gait_speed=float(speed), **geometry)
+    return scale, make_baseline(task, params, speed, **geometry)
 
 
 class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):

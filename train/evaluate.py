@@ -402,15 +402,15 @@ def _task_of(env_id: str) -> str:
 def steered_actor(args, path):
     """Liljebäck's line-of-sight path following (``los``), the command-steered serpenoid (``steering``)
     or goal seeking (``homing``)."""
-    from snake_env.agents.path_following import TASK_BASELINES
+    from snake_env.agents.path_following import make_baseline
 
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     try:
         params, speed, n_links, max_torque, dt, include_position = gait_for_task(args.env_id, path, env_kwargs)
         if speed is None:
             raise ValueError(f"the gait for n_links={n_links} in {path} has no search.mean_forward_velocity")
-        cls = TASK_BASELINES[BASELINES[args.baseline]]
-        controller = cls(params, n_links, max_torque, dt, gait_speed=float(speed), include_position=include_position)
+        controller = make_baseline(BASELINES[args.baseline], params, speed, n_links, max_torque, dt,
+                                   include_position=include_position)
     except ValueError as exc:
         raise EvalError(_first_line(exc)) from None
     title = f"{args.baseline} baseline (steered serpenoid {params}) on {args.env_id}"
