@@ -202,10 +202,20 @@ class GoalSeekingController(SteeredSerpenoid):
         self.turn_radius = float(gait_speed) / (self.turn_gain * self.max_offset)  # m
         self.hysteresis = float(hysteresis)
         self.backing_away = np.zeros(num_envs, bool)
+        self.direction = np.zeros(num_envs)  # +1 head first, -1 tail first, 0 before the first act
+
+    mode_size = 2
+
+    def mode(self) -> np.ndarray:
+        """(num_envs, 2): backing away (0/1) and the direction of travel of the last act. With the
+        observation they determine the next action; the hysteresis makes them state, not observation."""
+        return np.stack([self.backing_away.astype(np.float64), self.direction], axis=-1)
 
     def reset(self, mask=None) -> None:
         super().reset(mask)
-        self.backing_away[(slice(None) if mask is None else np.asarray(mask, bool))] = False
+        rows = slice(None) if mask is None else np.asarray(mask, bool)
+        self.backing_away[rows] = False
+        self.direction[rows] = 0.0
 
     def _goal_batch(self, obs):
         if not isinstance(obs, dict) or not {"observation", "achieved_goal", "desired_goal"} <= set(obs):
@@ -239,6 +249,7 @@ class GoalSeekingController(SteeredSerpenoid):
         # backing away straight: turning while backing away (either way) reached fewer goals
         direction = np.where(self.backing_away, -direction, direction)
         offset = np.where(self.backing_away, 0.0, offset)
+        self.direction = direction
         action = self.gait_action(physics, offset, direction)
         return action[0] if single else action
 

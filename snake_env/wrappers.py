@@ -407,6 +407,14 @@ def _with_phase(obs, phase):
     return np.concatenate([obs, extra], axis=-1)
 
 
+def _append(obs, extra):
+    """obs with the columns ``extra`` (..., k) appended (to the ``observation`` entry of a Dict observation)."""
+    if isinstance(obs, Mapping):
+        return {**obs, "observation": _append(obs["observation"], extra)}
+    obs = np.asarray(obs)
+    return np.concatenate([obs, np.asarray(extra).astype(obs.dtype)], axis=-1)
+
+
 def _cpg_action_space() -> spaces.Box:
     return spaces.Box(-1.0, 1.0, (len(CPG_PARAMETERS),), np.float32)
 
@@ -526,6 +534,18 @@ def _residual_settings(env, scale, gait, num_envs: int):
     return scale, make_baseline(task, params, speed, **geometry)
 
 
+def _mode_size(controller, observe_mode) -> int:
+    """Entries the baseline's hidden mode adds to the observation (``observe_mode``), 0 without it."""
+    if not isinstance(observe_mode, bool):
+        raise ValueError(f"observe_mode must be true or false, got {observe_mode!r}")
+    if not observe_mode:
+        return 0
+    if not hasattr(controller, "mode"):
+        raise ValueError(f"observe_mode needs a baseline with a hidden mode (the reach task's goal seeking); "
+                         f"{type(controller).__name__} has none")
+    return controller.mode_size
+
+
 class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Action = correction (fraction ``scale`` of max_torque per unit) added to the task's
     baseline controller's action; observation + sin, cos of the baseline gait's phase.
@@ -535,17 +555,22 @@ class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gait: forward task only: env id of the ``configs/serpenoid.yaml`` entry (default:
             this env's id). The path, command and reach baselines steer the gait of
             ``snake_env/Snake{n}-v*`` with this env's n.
+        observe_mode: reach task only: also append the baseline's hidden mode (backing away
+            0/1, direction of travel +-1, 0 before the first step), without which the
+            baseline's next action is not a function of the observation; default false.
     """
 
-    def __init__(self, env: gym.Env, scale: float = 0.3, gait: str | None = None):
-        gym.utils.RecordConstructorArgs.__init__(self, scale=scale, gait=gait)
+    def __init__(self, env: gym.Env, scale: float = 0.3, gait: str | None = None, observe_mode: bool = False):
+        gym.utils.RecordConstructorArgs.__init__(self, scale=scale, gait=gait, observe_mode=observe_mode)
         super().__init__(env)
         self.scale, self.controller = _residual_settings(env, scale, gait, 1)
-        self.observation_space = _extend_box(env.observation_space, 2)
+        self.observe_mode = bool(_mode_size(self.controller, observe_mode))
+        self.observation_space = _extend_box(env.observation_space, 2 + _mode_size(self.controller, observe_mode))
         self._obs = None
 
     def _augment(self, obs):
-        return _with_phase(obs, self.controller.phase[0])
+        obs = _with_phase(obs, self.controller.phase[0])
+        return _append(obs, self.controller.mode()[0]) if self.observe_mode else obs
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
@@ -568,16 +593,19 @@ class SerpenoidResidualActionVector(VectorWrapper):
     """:class:`SerpenoidResidualAction` for a batched vector env: one gait clock per sub-env,
     restarted with the sub-env's (auto)reset."""
 
-    def __init__(self, env, scale: float = 0.3, gait: str | None = None):
+    def __init__(self, env, scale: float = 0.3, gait: str | None = None, observe_mode: bool = False):
         super().__init__(env)
         self.scale, self.controller = _residual_settings(env, scale, gait, self.num_envs)
-        self.single_observation_space = _extend_box(env.single_observation_space, 2)
+        self.observe_mode = bool(_mode_size(self.controller, observe_mode))
+        self.single_observation_space = _extend_box(env.single_observation_space,
+                                                    2 + _mode_size(self.controller, observe_mode))
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._obs = None
         self._restarts = _ClockRestarts(env)
 
-    def _augment(self, obs):
-        return _with_phase(obs, self.controller.phase)
+    def _augment(self, obs, rows=slice(None)):
+        obs = _with_phase(obs, self.controller.phase[rows])
+        return _append(obs, self.controller.mode()[rows]) if self.observe_mode else obs
 
     def reset(self, *, seed=None, options=None):
         obs, info = self.env.reset(seed=seed, options=options)
@@ -598,7 +626,7 @@ class SerpenoidResidualActionVector(VectorWrapper):
         done = np.asarray(terminated | truncated)
         restart = self._restarts.after_step(done)
         if self._restarts.same_step:
-            info = _map_final_obs(info, done, lambda final, i: _with_phase(final, self.controller.phase[i]))
+            info = _map_final_obs(info, done, lambda final, i: self._augment(final, i))
         self.controller.reset(restart)
         return self._augment(obs), reward, terminated, truncated, info
 

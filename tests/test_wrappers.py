@@ -347,6 +347,59 @@ def test_serpenoid_residual_vector_on_the_reach_task_phases_the_final_dict_obser
     np.testing.assert_allclose(obs["observation"][:, -2:], [[0.0, 1.0], [0.0, 1.0]], atol=1e-12)
 
 
+def test_observe_mode_appends_goal_seekings_hidden_state_and_makes_its_action_a_function_of_the_observation():
+    """With ``observe_mode`` the observation's last two entries are the baseline's mode, which its next action
+    depends on (flipping it changes the action on some steps: it is state the plain observation lacks).
+    The single env and a one-row vector env agree."""
+    from snake_env.agents.path_following import GoalSeekingController
+
+    spec = {"serpenoid_residual": {"observe_mode": True}}
+    single = wrap_env(gym.make("snake_env/SnakeReach12-v0"), spec)
+    assert single.observation_space["observation"].shape == (26 + 2 + 2,)
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach12-v0", num_envs=1,
+                                          vectorization_mode="vector_entry_point"), spec)
+    obs, _ = single.reset(seed=5)
+    vobs, _ = vector.reset(seed=5)
+    rng = np.random.default_rng(0)
+    modes, mode_mattered = set(), False
+    for step in range(200):
+        np.testing.assert_allclose(vobs["observation"][0], obs["observation"], atol=1e-6)
+        o = obs["observation"]
+        np.testing.assert_array_equal(o[-2:], single.controller.mode()[0])
+        modes.add(tuple(o[-2:]))
+        plain = {**obs, "observation": o[:-4]}
+        flipped = copy.deepcopy(single.controller)
+        flipped.backing_away[:] = ~flipped.backing_away
+        mode_mattered |= not np.array_equal(flipped.act(plain), copy.deepcopy(single.controller).act(plain))
+        action = rng.normal(0.0, 0.1, 11).astype(np.float32)
+        obs, _, terminated, truncated, _ = single.step(action)
+        vobs, *_ = vector.step(action[None])
+        if terminated or truncated:
+            break
+    assert (0.0, 0.0) in modes and len(modes) > 1 and mode_mattered  # the reset's zeros, then a direction
+    with pytest.raises(ValueError, match="observe_mode needs a baseline with a hidden mode.*LineOfSightController"):
+        wrap_env(gym.make("snake_env/SnakePath5-v1"), spec)
+    with pytest.raises(ValueError, match="observe_mode must be true or false"):
+        wrap_env(gym.make("snake_env/SnakeReach5-v0"), {"serpenoid_residual": {"observe_mode": "yes"}})
+    assert isinstance(single.controller, GoalSeekingController)
+
+
+def test_observe_mode_final_obs_keeps_the_episodes_last_mode():
+    vector = SerpenoidResidualActionVector(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2,
+                                                        vectorization_mode="vector_entry_point",
+                                                        autoreset_mode=AutoresetMode.SAME_STEP,
+                                                        max_episode_steps=5), observe_mode=True)
+    vector.reset(seed=0)
+    for _ in range(4):
+        vector.step(np.zeros((2, 4), np.float32))
+    obs, _, _, truncated, info = vector.step(np.zeros((2, 4), np.float32))
+    assert truncated.all()
+    for i in range(2):
+        final = info["final_obs"][i]["observation"]
+        assert final[-1] in (-1.0, 1.0)  # the direction the gait ran in on the last step
+    np.testing.assert_array_equal(obs["observation"][:, -2:], np.zeros((2, 2)))  # restarted
+
+
 def test_serpenoid_residual_refuses_a_task_without_a_baseline(monkeypatch):
     env = gym.make("snake_env/Snake5-v1")
     monkeypatch.setattr(env.unwrapped, "task", type("Dance", (), {"name": "dance"})())
