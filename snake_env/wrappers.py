@@ -399,12 +399,8 @@ class _CPGSettings:
 
 def _with_phase(obs, phase):
     """obs with sin(phase), cos(phase) appended (last axis; of the ``observation`` entry of a Dict observation)."""
-    if isinstance(obs, Mapping):
-        return {**obs, "observation": _with_phase(obs["observation"], phase)}
-    obs = np.asarray(obs)
     phase = np.asarray(phase, dtype=np.float64)
-    extra = np.stack([np.sin(phase), np.cos(phase)], axis=-1).astype(obs.dtype)
-    return np.concatenate([obs, extra], axis=-1)
+    return _append(obs, np.stack([np.sin(phase), np.cos(phase)], axis=-1))
 
 
 def _append(obs, extra):
@@ -564,8 +560,9 @@ class SerpenoidResidualAction(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.utils.RecordConstructorArgs.__init__(self, scale=scale, gait=gait, observe_mode=observe_mode)
         super().__init__(env)
         self.scale, self.controller = _residual_settings(env, scale, gait, 1)
-        self.observe_mode = bool(_mode_size(self.controller, observe_mode))
-        self.observation_space = _extend_box(env.observation_space, 2 + _mode_size(self.controller, observe_mode))
+        mode_size = _mode_size(self.controller, observe_mode)
+        self.observe_mode = mode_size > 0
+        self.observation_space = _extend_box(env.observation_space, 2 + mode_size)
         self._obs = None
 
     def _augment(self, obs):
@@ -596,9 +593,9 @@ class SerpenoidResidualActionVector(VectorWrapper):
     def __init__(self, env, scale: float = 0.3, gait: str | None = None, observe_mode: bool = False):
         super().__init__(env)
         self.scale, self.controller = _residual_settings(env, scale, gait, self.num_envs)
-        self.observe_mode = bool(_mode_size(self.controller, observe_mode))
-        self.single_observation_space = _extend_box(env.single_observation_space,
-                                                    2 + _mode_size(self.controller, observe_mode))
+        mode_size = _mode_size(self.controller, observe_mode)
+        self.observe_mode = mode_size > 0
+        self.single_observation_space = _extend_box(env.single_observation_space, 2 + mode_size)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._obs = None
         self._restarts = _ClockRestarts(env)
