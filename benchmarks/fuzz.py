@@ -110,14 +110,15 @@ def run_cell(kwargs: dict, num_envs: int = 256, steps: int = 100_000, seed: int 
     tol = env.energy_tolerance
     rate_bound = physics.MAX_SUBSTEP_ANGLE / (env.sim_dt / 2 ** env.params.max_refinements)
     n = env.n_links
-    n_iter = max(1, math.ceil(steps / B))
     failures = leaks = env_steps = 0
     reasons: dict[str, int] = {}
     residuals = []
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        for _ in range(n_iter):
+        # count env-steps, not batches: rows being auto-reset do not step, so a fixed number of
+        # batches would fall short of ``steps``
+        while env_steps < steps:
             if max_seconds is not None and time.perf_counter() - start > max_seconds:
                 break
             a = rng.uniform(-1.0, 1.0, (B, n - 1))
