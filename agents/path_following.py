@@ -104,6 +104,17 @@ class SteeredSerpenoid:
         self.phase += omega * self.dt
         return np.clip(torque / self.max_torque, -1.0, 1.0).astype(np.float32)
 
+    def guidance(self, obs) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """The outer loop: (physics observation (B, ...), offset gamma (B,) rad, signed gait frequency
+        scale (B,), whether ``obs`` was a single observation); advances the guidance's own state."""
+        raise NotImplementedError
+
+    def act(self, obs) -> np.ndarray:
+        """Joint torques / max_torque of the cascade: :meth:`guidance`, then the PD serpenoid."""
+        physics, offset, freq_scale, single = self.guidance(obs)
+        action = self.gait_action(physics, offset, freq_scale)
+        return action[0] if single else action
+
     def _batch(self, obs):
         if isinstance(obs, dict):
             raise ValueError("this controller reads a Box observation, got a Dict (the reach task's baseline is "
@@ -133,15 +144,14 @@ class LineOfSightController(SteeredSerpenoid):
         self.speed = float(gait_speed) * float(speed_scale)
         self.speed_scale = float(speed_scale)
 
-    def act(self, obs) -> np.ndarray:
+    def guidance(self, obs):
         obs, single = self._batch(obs)
         error, curvature = obs[:, -4], obs[:, -1]
         relative = np.arctan2(obs[:, -2], obs[:, -3])  # psi - theta_bar
         heading_error = wrap(relative - np.arctan(error / self.lookahead))  # theta_ref - theta_bar
         offset = np.clip(curvature * self.speed / TURN_GAIN + self.gain * heading_error,
                          -self.max_offset, self.max_offset)
-        action = self.gait_action(obs, offset, np.full(self.num_envs, self.speed_scale))
-        return action[0] if single else action
+        return obs, offset, np.full(self.num_envs, self.speed_scale), single
 
 
 class SteeringController(SteeredSerpenoid):
@@ -160,7 +170,7 @@ class SteeringController(SteeredSerpenoid):
         super().reset(mask)
         self.heading_ref[(slice(None) if mask is None else np.asarray(mask, bool))] = np.nan
 
-    def act(self, obs) -> np.ndarray:
+    def guidance(self, obs):
         obs, single = self._batch(obs)
         heading = mean_link_angle(obs, self.n_links, self.include_position)
         start = np.isnan(self.heading_ref)
@@ -168,9 +178,8 @@ class SteeringController(SteeredSerpenoid):
         v_cmd, w_cmd = obs[:, -4], obs[:, -3]
         error = wrap(self.heading_ref - heading)
         offset = np.clip(w_cmd / TURN_GAIN + self.gain * error, -self.max_offset, self.max_offset)
-        action = self.gait_action(obs, offset, np.clip(v_cmd / self.gait_speed, 0.0, 2.0))
         self.heading_ref = wrap(self.heading_ref + w_cmd * self.dt)
-        return action[0] if single else action
+        return obs, offset, np.clip(v_cmd / self.gait_speed, 0.0, 2.0), single
 
 
 class GoalSeekingController(SteeredSerpenoid):
@@ -231,7 +240,7 @@ class GoalSeekingController(SteeredSerpenoid):
                              f"({self.num_envs}, 2), got {physics.shape}, {cm.shape}, {goal.shape}")
         return physics, cm, goal, single
 
-    def act(self, obs) -> np.ndarray:
+    def guidance(self, obs):
         physics, cm, goal, single = self._goal_batch(obs)
         heading = mean_link_angle(physics, self.n_links, self.include_position)
         to_goal = goal - cm
@@ -250,8 +259,7 @@ class GoalSeekingController(SteeredSerpenoid):
         direction = np.where(self.backing_away, -direction, direction)
         offset = np.where(self.backing_away, 0.0, offset)
         self.direction = direction
-        action = self.gait_action(physics, offset, direction)
-        return action[0] if single else action
+        return physics, offset, direction, single
 
 
 # task name -> its steered baseline (``snake-eval --baseline`` and the ``serpenoid_residual`` wrapper)

@@ -16,7 +16,8 @@ from snake_env.agents.search import load_params
 from snake_env.agents.serpenoid import SerpenoidController
 from snake_env.wrappers import (CPGAction, CPGActionVector, GoalFrameObservation, GoalFrameObservationVector,
                                 JointTargetAction, JointTargetActionVector, PhaseObservation, PhaseObservationVector, SerpenoidResidualAction,
-                                SerpenoidResidualActionVector, parse_env_wrapper, wrap_env, wrap_vector_env)
+                                SerpenoidResidualActionVector, SteeringResidualAction, SteeringResidualActionVector,
+                                parse_env_wrapper, wrap_env, wrap_vector_env)
 
 ENV = "snake_env/Snake3-v1"
 
@@ -164,7 +165,8 @@ def test_clock_wrappers_restart_on_same_step_autoreset_and_clock_the_final_obs(s
 
 
 @pytest.mark.parametrize("spec, message", [
-    ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'goal_frame', 'joint_target', 'phase_observation', 'serpenoid_residual'], "
+    ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'goal_frame', 'joint_target', 'phase_observation', 'serpenoid_residual', "
+     "'steering_residual'], "
      "got 'joint_targets'"),
     ("torque_mode", "env_wrapper name must be one of"),
     ({"joint_target": {"kp": -1.0}}, "kp must be a finite number >= 0"),
@@ -178,6 +180,7 @@ def test_clock_wrappers_restart_on_same_step_autoreset_and_clock_the_final_obs(s
     ({"serpenoid_residual": {"scale": 0.0}}, "scale must be a finite number > 0.0"),
     ({"serpenoid_residual": {"scale": 3.0}}, "scale must be in (0, 2]"),
     ({"serpenoid_residual": {"gait": "snake_env/Snake99-v1"}}, "no serpenoid gait for env 'snake_env/Snake99-v1'"),
+    ("steering_residual", "steering_residual needs a task whose baseline steers the gait (path, command, reach)"),
 ])
 def test_bad_wrapper_specs_are_rejected_with_one_line(spec, message):
     with pytest.raises(ValueError) as info:
@@ -230,16 +233,23 @@ def test_a_constant_cpg_action_is_the_searched_serpenoid():
     assert np.mean(speeds[50:]) > 0.9  # the searched gait's 1.05 m/s, not a stalled snake
 
 
-@pytest.mark.parametrize("single_cls, vector_cls, env_id, kwargs", [
-    (CPGAction, CPGActionVector, ENV, {"max_frequency": 30.0}),
-    (SerpenoidResidualAction, SerpenoidResidualActionVector, "snake_env/Snake5-v1", {}),
-], ids=["cpg", "serpenoid_residual"])
-def test_clocked_action_wrappers_batch_and_restart_their_clock_on_autoreset(single_cls, vector_cls, env_id, kwargs):
+# the command task with one command: its draws then agree between a single env and a vector env's row 0
+ONE_COMMAND = {"speed_range": (0.3, 0.3), "yaw_rate_range": (0.2, 0.2)}
+
+
+@pytest.mark.parametrize("single_cls, vector_cls, env_id, env_kwargs, kwargs", [
+    (CPGAction, CPGActionVector, ENV, {}, {"max_frequency": 30.0}),
+    (SerpenoidResidualAction, SerpenoidResidualActionVector, "snake_env/Snake5-v1", {}, {}),
+    (SteeringResidualAction, SteeringResidualActionVector, "snake_env/SnakeCommand5-v0", ONE_COMMAND,
+     {"offset_scale": 0.3}),
+], ids=["cpg", "serpenoid_residual", "steering_residual"])
+def test_clocked_action_wrappers_batch_and_restart_their_clock_on_autoreset(single_cls, vector_cls, env_id,
+                                                                            env_kwargs, kwargs):
     """The vector wrapper equals the single one row by row, and a sub-env's oscillator phase
     restarts at 0 with its (next-step) autoreset."""
-    single = single_cls(gym.make(env_id, max_episode_steps=6), **kwargs)
+    single = single_cls(gym.make(env_id, max_episode_steps=6, **env_kwargs), **kwargs)
     vector = vector_cls(gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
-                                     max_episode_steps=6), **kwargs)
+                                     max_episode_steps=6, **env_kwargs), **kwargs)
     assert vector.single_action_space == single.action_space
     for k, obs, vobs in side_by_side(single, vector, seed=5, n_steps=8, rng_seed=2):
         if k < 6:  # the single env is truncated after 6 steps; the vector's 7th step resets both rows
@@ -486,3 +496,93 @@ def test_train_config_refuses_goal_reading_wrappers_with_her():
     assert cfg.build_config("sac", "snake_env/SnakeReach5-v0")["replay_buffer_class"] == "HerReplayBuffer"
     with pytest.raises(cfg.ConfigError, match=r"env_wrapper \['goal_frame'\] does not combine with .*HerReplayBuffer"):
         cfg.build_config("sac", "snake_env/SnakeReach5-v0", overrides=["env_wrapper=goal_frame"])
+    with pytest.raises(cfg.ConfigError, match=r"env_wrapper \['steering_residual'\] does not combine"):
+        cfg.build_config("sac", "snake_env/SnakeReach5-v0", overrides=["env_wrapper=steering_residual"])
+
+
+@pytest.mark.parametrize("env_id, n_links", [("snake_env/SnakePath12-v1", 12), ("snake_env/SnakeCommand5-v0", 5),
+                                             ("snake_env/SnakeReach12-v0", 12)])
+def test_steering_residual_with_zero_action_is_the_tasks_baseline(env_id, n_links):
+    """Zero action = the baseline of snake-eval --baseline (with its configs/baselines.yaml settings) step for step."""
+    from snake_env.agents.path_following import make_baseline
+    from snake_env.agents.search import gait_for_links
+
+    params, speed = gait_for_links(n_links)
+    plain = gym.make(env_id)
+    baseline = make_baseline(plain.unwrapped.task.name, params, speed, n_links, 1.0, 0.04)
+    residual = SteeringResidualAction(gym.make(env_id))
+    assert residual.action_space == gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    obs, _ = residual.reset(seed=3)
+    plain_obs, _ = plain.reset(seed=3)
+    for _ in range(80):
+        obs, reward, terminated, truncated, _ = residual.step(np.zeros(2, np.float32))
+        plain_obs, plain_reward, *_ = plain.step(baseline.act(plain_obs))
+        assert reward == plain_reward
+        if terminated or truncated:
+            break
+
+
+def test_steering_residual_corrects_the_offset_and_the_gait_frequency():
+    """A unit action sends the PD serpenoid's torque for offset + offset_scale and frequency x (1 + speed_range);
+    a positive offset correction turns the snake left (its yaw rate rises), as gamma does in the baseline."""
+    env_id = "snake_env/SnakeCommand5-v0"
+    residual = SteeringResidualAction(gym.make(env_id), offset_scale=0.1, speed_range=0.5)
+    obs, _ = residual.reset(seed=0)
+    for _ in range(5):
+        obs, *_ = residual.step(np.zeros(2, np.float32))
+    twin = copy.deepcopy(residual.controller)
+    physics, offset, freq_scale, _ = twin.guidance(residual._obs)
+    expected = twin.gait_action(physics, offset + 0.1 * 0.5, freq_scale * (1.0 - 0.5 * 0.5))
+    recorder = {}
+    original_step = residual.env.step
+    residual.env.step = lambda action: (recorder.setdefault("action", action), original_step(action))[1]
+    residual.step(np.array([0.5, -0.5], np.float32))
+    np.testing.assert_allclose(recorder["action"], expected[0], atol=1e-7)
+    np.testing.assert_allclose(residual.controller.phase, twin.phase, atol=1e-12)  # the slowed clock
+
+    def run(action):
+        """Mean link angles (rad) and CM speeds (m/s) of 150 steps under a constant action (1 m/s, no turn)."""
+        from snake_env.agents.path_following import mean_link_angle
+
+        env = SteeringResidualAction(gym.make(env_id, speed_range=(1.0, 1.0), yaw_rate_range=(0.0, 0.0)),
+                                     offset_scale=0.1)
+        env.reset(seed=1)
+        heading, speed = [], []
+        for _ in range(150):
+            info = env.step(np.asarray(action, np.float32))[4]
+            heading.append(mean_link_angle(env._obs[None], 5, False)[0])
+            speed.append(math.hypot(info["x_velocity"], info["y_velocity"]))
+        return np.array(heading), np.mean(speed[50:])
+
+    heading, speed = run([0.0, 0.0])
+    left = np.angle(np.exp(1j * (run([1.0, 0.0])[0] - heading)))
+    assert np.mean(left[100:]) > 0.2  # measured 0.4-0.65 rad: the heading feedback resists, but late
+    # no-slip wheels: the speed follows the gait frequency (measured x1.53 and x0.41)
+    assert 1.3 < run([0.0, 1.0])[1] / speed < 1.8 and 0.25 < run([0.0, -1.0])[1] / speed < 0.7
+
+
+def test_steering_residual_on_reach_passes_the_env_checker_and_batches_its_dict_observation():
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        check_env(SteeringResidualAction(gym.make("snake_env/SnakeReach8-v0"), observe_mode=True),
+                  skip_render_check=True)
+    spec = [{"steering_residual": {"observe_mode": True}}, "goal_frame"]
+    single = wrap_env(gym.make("snake_env/SnakeReach8-v0"), spec)
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach8-v0", num_envs=1,  # one row: the same goal draw
+                                          vectorization_mode="vector_entry_point"), spec)
+    assert vector.single_observation_space == single.observation_space
+    obs, _ = single.reset(seed=4)
+    vobs, _ = vector.reset(seed=4)
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        for key in obs:
+            np.testing.assert_allclose(vobs[key][0], obs[key], atol=1e-6)
+        action = rng.uniform(-1, 1, 2).astype(np.float32)
+        obs, _, terminated, truncated, _ = single.step(action)
+        vobs, *_ = vector.step(action[None])
+        if terminated or truncated:
+            break
+    with pytest.raises(ValueError, match=r"offset_scale must be in \(0, 1\] rad and speed_range in \[0, 1\]"):
+        wrap_env(gym.make("snake_env/SnakeReach8-v0"), {"steering_residual": {"offset_scale": 2.0}})
