@@ -128,6 +128,21 @@ class SteeredSerpenoid:
         return obs, single
 
 
+class StraightGait(SteeredSerpenoid):
+    """The searched serpenoid run straight (gamma = 0, the gait's own frequency): guidance that reads
+    no goal, command or path, so a policy that corrects it (``steering_residual: {baseline: gait}``)
+    may have its goals relabelled by HER. Reads the physics observation (or a Dict's ``observation``)."""
+
+    def guidance(self, obs):
+        physics = obs["observation"] if isinstance(obs, dict) else obs
+        physics = np.atleast_2d(np.asarray(physics, dtype=np.float64))
+        if physics.shape[0] != self.num_envs or physics.shape[1] < self.physics_size:
+            raise ValueError(f"observation must have shape ({self.num_envs}, >= {self.physics_size}), got "
+                             f"{physics.shape}")
+        single = np.asarray(obs["observation"] if isinstance(obs, dict) else obs).ndim == 1
+        return physics, np.zeros(self.num_envs), np.ones(self.num_envs), single
+
+
 class LineOfSightController(SteeredSerpenoid):
     """Path task: gamma = kappa v / G + k_theta (theta_ref - theta_bar), theta_ref = psi - arctan(e / Delta).
 

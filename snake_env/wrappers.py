@@ -556,6 +556,18 @@ class _TorqueResidual:
 
 
 STEERING_ACTIONS = ("offset", "speed")
+# what steering_residual corrects: the task's baseline (snake-eval --baseline), or the searched gait
+# run straight, which reads no goal (so HER may relabel the goals of its transitions)
+STEERING_BASELINES = ("task", "gait")
+
+
+def _straight_gait(env, num_envs: int):
+    from snake_env.agents.path_following import StraightGait
+    from snake_env.agents.search import gait_for_links
+
+    g = _geometry(env)
+    return StraightGait(gait_for_links(g["n_links"])[0], g["n_links"], g["max_torque"], g["dt"], num_envs,
+                        include_position=g["phi"].start == 2)
 
 
 class _SteeringResidual:
@@ -563,16 +575,21 @@ class _SteeringResidual:
     plus ``offset_scale`` rad x action[0], the gait frequency times 1 + ``speed_range`` x action[1]
     (its sign, the direction of travel, stays the baseline's)."""
 
-    def __init__(self, env, offset_scale, speed_range, num_envs: int):
+    def __init__(self, env, offset_scale, speed_range, baseline, num_envs: int):
         self.offset_scale = _number("offset_scale", offset_scale, "rad", strict=True)
         self.speed_range = _number("speed_range", speed_range, "fraction of the gait frequency")
         if self.offset_scale > 1.0 or self.speed_range > 1.0:
             raise ValueError(f"offset_scale must be in (0, 1] rad and speed_range in [0, 1], got "
                              f"{offset_scale!r}, {speed_range!r}")
-        self.controller = _task_baseline(env, None, num_envs)
+        if baseline not in STEERING_BASELINES:
+            raise ValueError(f"baseline must be one of {list(STEERING_BASELINES)}, got {baseline!r}")
+        if baseline == "gait":
+            self.controller = _straight_gait(env, num_envs)
+        else:
+            self.controller = _task_baseline(env, None, num_envs)
         if not hasattr(self.controller, "guidance"):
             raise ValueError("steering_residual needs a task whose baseline steers the gait (path, command, "
-                             "reach); the forward task's serpenoid has no steering (use serpenoid_residual)")
+                             "reach) or baseline: gait; the forward task's serpenoid has no steering")
         self.action_space = spaces.Box(-1.0, 1.0, (len(STEERING_ACTIONS),), np.float32)
 
     def env_action(self, obs, action) -> np.ndarray:
@@ -701,20 +718,26 @@ class SteeringResidualAction(_BaselineResidualAction):
     Args:
         offset_scale: offset of a unit action (rad), in (0, 1]; default 0.15.
         speed_range: relative frequency change of a unit action, in [0, 1]; default 0.5.
-        observe_mode: reach task only: as for :class:`SerpenoidResidualAction`.
+        baseline: ``"task"`` (default), the task's baseline of ``snake-eval --baseline``; or
+            ``"gait"``, the searched serpenoid of this n run straight (gamma = 0), which reads no
+            goal: the one that combines with HER on the reach task (any task, also forward).
+        observe_mode: reach task's baseline only: as for :class:`SerpenoidResidualAction`.
     """
 
-    def __init__(self, env: gym.Env, offset_scale: float = 0.15, speed_range: float = 0.5,
+    def __init__(self, env: gym.Env, offset_scale: float = 0.15, speed_range: float = 0.5, baseline: str = "task",
                  observe_mode: bool = False):
-        residual = _SteeringResidual(env, offset_scale, speed_range, 1)
-        super().__init__(env, residual, observe_mode, offset_scale=offset_scale, speed_range=speed_range)
+        residual = _SteeringResidual(env, offset_scale, speed_range, baseline, 1)
+        super().__init__(env, residual, observe_mode, offset_scale=offset_scale, speed_range=speed_range,
+                         baseline=baseline)
 
 
 class SteeringResidualActionVector(_BaselineResidualActionVector):
     """:class:`SteeringResidualAction` for a batched vector env."""
 
-    def __init__(self, env, offset_scale: float = 0.15, speed_range: float = 0.5, observe_mode: bool = False):
-        super().__init__(env, _SteeringResidual(env, offset_scale, speed_range, env.num_envs), observe_mode)
+    def __init__(self, env, offset_scale: float = 0.15, speed_range: float = 0.5, baseline: str = "task",
+                 observe_mode: bool = False):
+        super().__init__(env, _SteeringResidual(env, offset_scale, speed_range, baseline, env.num_envs),
+                         observe_mode)
 
 
 def _goal_frame_geometry(env) -> dict:

@@ -586,3 +586,35 @@ def test_steering_residual_on_reach_passes_the_env_checker_and_batches_its_dict_
             break
     with pytest.raises(ValueError, match=r"offset_scale must be in \(0, 1\] rad and speed_range in \[0, 1\]"):
         wrap_env(gym.make("snake_env/SnakeReach8-v0"), {"steering_residual": {"offset_scale": 2.0}})
+
+
+def test_steering_residual_on_the_straight_gait_reads_no_goal():
+    """baseline: gait steers the searched serpenoid run straight: the zero action is that gait (offset 0, its
+    frequency) whatever the goal, so HER may relabel goals; the gait moves the snake at its searched speed."""
+    from snake_env.agents.search import gait_for_links
+
+    env = SteeringResidualAction(gym.make("snake_env/SnakeReach5-v0"), baseline="gait", offset_scale=0.3)
+    obs, _ = env.reset(seed=0)
+    moved = {**obs, "desired_goal": obs["desired_goal"] + 5.0}  # another goal: the same action
+    np.testing.assert_array_equal(copy.deepcopy(env.controller).act(moved), copy.deepcopy(env.controller).act(obs))
+    expected = copy.deepcopy(env.controller).gait_action(np.asarray(obs["observation"], float)[None], np.zeros(1), np.ones(1))
+    recorder = {}
+    original_step = env.env.step
+    env.env.step = lambda action: (recorder.setdefault("action", action), original_step(action))[1]
+    env.step(np.zeros(2, np.float32))
+    np.testing.assert_allclose(recorder["action"], expected[0], atol=1e-7)
+    speeds = []
+    for _ in range(80):
+        info = env.step(np.zeros(2, np.float32))[4]
+        speeds.append(math.hypot(info["x_velocity"], info["y_velocity"]))
+    assert np.mean(speeds[20:]) > 0.8 * gait_for_links(5)[1]
+    with pytest.raises(ValueError, match=r"baseline must be one of \['task', 'gait'\], got 'goal'"):
+        SteeringResidualAction(gym.make("snake_env/SnakeReach5-v0"), baseline="goal")
+    with pytest.raises(ValueError, match="observe_mode needs a baseline with a hidden mode.*StraightGait"):
+        SteeringResidualAction(gym.make("snake_env/SnakeReach5-v0"), baseline="gait", observe_mode=True)
+    # goal-free: the config lets HER relabel its goals
+    from snake_env.train import config as cfg
+
+    config = cfg.build_config("sac", "snake_env/SnakeReach5-v0",
+                              overrides=["env_wrapper={steering_residual: {baseline: gait}}"])
+    assert config["replay_buffer_class"] == "HerReplayBuffer"

@@ -306,10 +306,11 @@ def validate(config: dict) -> dict:
     from snake_env.wrappers import parse_env_wrapper
 
     try:
-        wrappers = [name for name, _ in parse_env_wrapper(config["env_wrapper"])]
+        wrappers = parse_env_wrapper(config["env_wrapper"])
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    goal_derived = sorted({"goal_frame", "serpenoid_residual", "steering_residual"} & set(wrappers))
+    goal_derived = sorted({name for name, kwargs in wrappers if name in ("goal_frame", "serpenoid_residual")
+                           or (name == "steering_residual" and kwargs.get("baseline", "task") == "task")})
     if goal_derived and config.get("replay_buffer_class") == "HerReplayBuffer":
         # HER relabels desired_goal in stored transitions; these wrappers computed from the original goal
         raise ConfigError(f"env_wrapper {goal_derived} does not combine with replay_buffer_class HerReplayBuffer "

@@ -20,12 +20,14 @@ TINY = ["--n-envs", "2", "--set", "env_kwargs.max_episode_steps=50", "--set", "e
         "--no-progress-bar"]
 
 
-def test_sac_with_her_smoke_trains_on_reach_and_evaluates(tmp_path, capsys):
+@pytest.mark.parametrize("wrapper", [[], ["--set", "env_wrapper={steering_residual: {baseline: gait}}"]],
+                         ids=["plain", "steering_residual_on_the_gait"])
+def test_sac_with_her_smoke_trains_on_reach_and_evaluates(tmp_path, capsys, wrapper):
     run_dir = tmp_path / "her"
     # HER samples only after a finished episode: 2 envs x 50 steps < learning_starts
     assert train_main(["--algo", "sac", "--env", "snake_env/SnakeReach5-v0", "--total-timesteps", "300",
                        "--run-dir", str(run_dir), "--set", "learning_starts=120", "--set", "buffer_size=2000",
-                       "--set", "batch_size=32", *TINY]) == 0
+                       "--set", "batch_size=32", *TINY, *wrapper]) == 0
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert config["replay_buffer_class"] == "HerReplayBuffer"
     with zipfile.ZipFile(run_dir / "model.zip") as archive:
