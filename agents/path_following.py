@@ -134,13 +134,12 @@ class StraightGait(SteeredSerpenoid):
     may have its goals relabelled by HER. Reads the physics observation (or a Dict's ``observation``)."""
 
     def guidance(self, obs):
-        physics = obs["observation"] if isinstance(obs, dict) else obs
-        physics = np.atleast_2d(np.asarray(physics, dtype=np.float64))
+        raw = np.asarray(obs["observation"] if isinstance(obs, dict) else obs, dtype=np.float64)
+        physics = np.atleast_2d(raw)
         if physics.shape[0] != self.num_envs or physics.shape[1] < self.physics_size:
             raise ValueError(f"observation must have shape ({self.num_envs}, >= {self.physics_size}), got "
                              f"{physics.shape}")
-        single = np.asarray(obs["observation"] if isinstance(obs, dict) else obs).ndim == 1
-        return physics, np.zeros(self.num_envs), np.ones(self.num_envs), single
+        return physics, np.zeros(self.num_envs), np.ones(self.num_envs), raw.ndim == 1
 
 
 class LineOfSightController(SteeredSerpenoid):
