@@ -241,8 +241,9 @@ def main(argv=None) -> int:
     if args.from_json:
         with open(args.from_json) as f:
             rows = json.load(f)
+        seconds = f" --seconds-per-cell {args.seconds_per_cell:g}" if args.seconds_per_cell else ""
         meta = {"command": f"python -m snake_env.benchmarks.fuzz --steps-per-cell {args.steps_per_cell} --num-envs "
-                           f"{args.num_envs} --json {args.from_json}",
+                           f"{args.num_envs}{seconds} --json {args.from_json}",
                 "steps_per_cell": args.steps_per_cell, "num_envs": args.num_envs, "wall_s": args.wall_s,
                 "seconds_per_cell": args.seconds_per_cell,
                 "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load": "shared machine",
