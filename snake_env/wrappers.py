@@ -495,6 +495,11 @@ class CPGActionVector(VectorWrapper):
         return _with_phase(obs, self._phase), reward, terminated, truncated, info
 
 
+def _task_name(env) -> str:
+    """The env's task name ("forward", "path", "command", "reach")."""
+    return getattr(getattr(env.unwrapped, "task", None), "name", "forward")
+
+
 def _task_baseline(env, gait, num_envs: int):
     """The baseline controller of the residual wrappers: the task's baseline of
     ``snake-eval --baseline`` (forward: the searched serpenoid of ``gait``, default this
@@ -507,7 +512,7 @@ def _task_baseline(env, gait, num_envs: int):
     g = _geometry(env)
     geometry = dict(n_links=g["n_links"], max_torque=g["max_torque"], dt=g["dt"], num_envs=num_envs,
                     include_position=g["phi"].start == 2)
-    task = getattr(getattr(env.unwrapped, "task", None), "name", "forward")
+    task = _task_name(env)
     if task == "forward":
         if gait is None:
             spec = getattr(env, "spec", None) or getattr(env.unwrapped, "spec", None)
@@ -516,7 +521,7 @@ def _task_baseline(env, gait, num_envs: int):
                 raise ValueError("serpenoid_residual needs gait=<env id of a configs/serpenoid.yaml entry>")
         return SerpenoidController(load_params(gait)[0], **geometry)
     if task not in TASK_BASELINES:
-        raise ValueError(f"serpenoid_residual needs a task with a baseline controller, one of "
+        raise ValueError(f"a residual wrapper needs a task with a baseline controller, one of "
                          f"{['forward', *TASK_BASELINES]}; got task {task!r}")
     if gait is not None:
         raise ValueError(f"gait applies to the forward task; the {task} baseline steers the gait of "
@@ -585,11 +590,11 @@ class _SteeringResidual:
             raise ValueError(f"baseline must be one of {list(STEERING_BASELINES)}, got {baseline!r}")
         if baseline == "gait":
             self.controller = _straight_gait(env, num_envs)
-        else:
-            self.controller = _task_baseline(env, None, num_envs)
-        if not hasattr(self.controller, "guidance"):
+        elif _task_name(env) == "forward":
             raise ValueError("steering_residual needs a task whose baseline steers the gait (path, command, "
                              "reach) or baseline: gait; the forward task's serpenoid has no steering")
+        else:
+            self.controller = _task_baseline(env, None, num_envs)
         self.action_space = spaces.Box(-1.0, 1.0, (len(STEERING_ACTIONS),), np.float32)
 
     def env_action(self, obs, action) -> np.ndarray:
