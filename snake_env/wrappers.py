@@ -500,6 +500,14 @@ def _task_name(env) -> str:
     return getattr(getattr(env.unwrapped, "task", None), "name", "forward")
 
 
+def _controller_geometry(env, num_envs: int) -> dict:
+    """The keyword arguments a gait controller takes from the env (n_links, max_torque, dt, num_envs,
+    include_position)."""
+    g = _geometry(env)
+    return dict(n_links=g["n_links"], max_torque=g["max_torque"], dt=g["dt"], num_envs=num_envs,
+                include_position=g["phi"].start == 2)
+
+
 def _task_baseline(env, gait, num_envs: int):
     """The baseline controller of the residual wrappers: the task's baseline of
     ``snake-eval --baseline`` (forward: the searched serpenoid of ``gait``, default this
@@ -509,9 +517,7 @@ def _task_baseline(env, gait, num_envs: int):
     from snake_env.agents.search import gait_for_links, load_params
     from snake_env.agents.serpenoid import SerpenoidController
 
-    g = _geometry(env)
-    geometry = dict(n_links=g["n_links"], max_torque=g["max_torque"], dt=g["dt"], num_envs=num_envs,
-                    include_position=g["phi"].start == 2)
+    geometry = _controller_geometry(env, num_envs)
     task = _task_name(env)
     if task == "forward":
         if gait is None:
@@ -525,10 +531,10 @@ def _task_baseline(env, gait, num_envs: int):
                          f"{['forward', *TASK_BASELINES]}; got task {task!r}")
     if gait is not None:
         raise ValueError(f"gait applies to the forward task; the {task} baseline steers the gait of "
-                         f"snake_env/Snake{g['n_links']}-v*, got gait={gait!r}")
-    params, speed = gait_for_links(g["n_links"])
+                         f"snake_env/Snake{geometry['n_links']}-v*, got gait={gait!r}")
+    params, speed = gait_for_links(geometry["n_links"])
     if speed is None:
-        raise ValueError(f"the serpenoid gait for n_links={g['n_links']} has no search.mean_forward_velocity")
+        raise ValueError(f"the serpenoid gait for n_links={geometry['n_links']} has no search.mean_forward_velocity")
     return make_baseline(task, params, speed, **geometry)
 
 
@@ -570,9 +576,8 @@ def _straight_gait(env, num_envs: int):
     from snake_env.agents.path_following import StraightGait
     from snake_env.agents.search import gait_for_links
 
-    g = _geometry(env)
-    return StraightGait(gait_for_links(g["n_links"])[0], g["n_links"], g["max_torque"], g["dt"], num_envs,
-                        include_position=g["phi"].start == 2)
+    geometry = _controller_geometry(env, num_envs)
+    return StraightGait(gait_for_links(geometry["n_links"])[0], **geometry)
 
 
 class _SteeringResidual:
