@@ -60,6 +60,14 @@ arguments and the same per-step arithmetic:
   world coordinates (a rotation by the heading). It is derived from
   ``desired_goal``, so HER's relabelled goals would leave it stale: on-policy only.
 
+* ``steering_residual`` (:class:`SteeringResidualAction`): a residual on the
+  outer loop of a serpenoid cascade (Liljebäck et al. 2011) instead of on the
+  torques: the action (2,) shifts the gait offset gamma and scales the gait
+  frequency, and the PD serpenoid stays the inner loop. ``baseline: task``
+  corrects the path, command or reach baseline; ``baseline: gait`` corrects the
+  searched serpenoid run straight, which reads no goal (HER may relabel) and
+  also drives the forward task.
+
 The train config selects them with the ``env_wrapper`` key (after RL Zoo's
 key of that name), a mapping ``{name: {kwarg: value}}`` applied in order::
 
@@ -723,7 +731,8 @@ class SteeringResidualAction(_BaselineResidualAction):
     PD-tracked serpenoid, turns them into joint torques. The zero action is the baseline.
     Exploration noise then perturbs the heading, not the gait: joint-torque noise of
     std 0.135 x 0.3 max_torque takes goal seeking on SnakeReach12 from 80 % to 16 % of goals.
-    Observation + sin, cos of the gait's phase. Path, command and reach tasks.
+    Observation + sin, cos of the gait's phase. Path, command and reach tasks; with
+    ``baseline: "gait"`` also the forward task.
 
     Args:
         offset_scale: offset of a unit action (rad), in (0, 1]; default 0.15.

@@ -522,6 +522,32 @@ def test_steering_residual_with_zero_action_is_the_tasks_baseline(env_id, n_link
             break
 
 
+def test_steering_residual_on_the_forward_task_starts_at_the_searched_serpenoid():
+    """The forward task has no steering baseline, but baseline: gait does: its zero action sends the torques of
+    the serpenoid of snake-eval --baseline serpenoid (configs/serpenoid.yaml, this id) step for step."""
+    from snake_env.agents.search import load_params
+    from snake_env.agents.serpenoid import SerpenoidController
+
+    env_id = "snake_env/Snake20-v1"
+    residual = SteeringResidualAction(gym.make(env_id), baseline="gait")
+    plain = gym.make(env_id)
+    serpenoid = SerpenoidController(load_params(env_id)[0], n_links=20, max_torque=plain.unwrapped.max_torque,
+                                    dt=plain.unwrapped.dt)
+    sent = {}
+    original_step = residual.env.step
+    residual.env.step = lambda action: (sent.__setitem__("action", action), original_step(action))[1]
+    residual.reset(seed=3)
+    plain_obs, _ = plain.reset(seed=3)
+    for _ in range(150):
+        reward = residual.step(np.zeros(2, np.float32))[1]
+        action = serpenoid.act(plain_obs)
+        plain_obs, plain_reward, *_ = plain.step(action)
+        np.testing.assert_allclose(sent["action"], action, atol=1e-7)
+        assert reward == plain_reward
+    with pytest.raises(ValueError, match="forward task's serpenoid has no steering"):
+        SteeringResidualAction(gym.make(env_id))
+
+
 def test_steering_residual_corrects_the_offset_and_the_gait_frequency():
     """A unit action sends the PD serpenoid's torque for offset + offset_scale and frequency x (1 + speed_range);
     a positive offset correction turns the snake left (its yaw rate rises), as gamma does in the baseline."""
