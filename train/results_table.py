@@ -11,7 +11,9 @@ Results are cached as ``eval_*.json`` in every run directory.
 With ``--images`` it also draws ``speed_vs_n.png``: the learned runs' speed
 and the serpenoid's (every id of ``configs/serpenoid.yaml`` named SnakeN)
 against n; ``--earlier CSV`` (columns env, algo, seed, speed) adds hollow
-points for speeds measured in an earlier campaign whose runs are not at hand.
+points for speeds measured in an earlier campaign whose runs are not at hand,
+and ``--measured CSV`` (same columns) adds this campaign's speeds of runs that
+are not under ``root`` (e.g. evaluated on another machine) as filled points.
 """
 
 from __future__ import annotations
@@ -63,10 +65,22 @@ def fmt(values) -> str:
     return f"{values.mean():.2f} ± {values.std():.2f}"
 
 
-def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=None) -> None:
-    """speed_vs_n.png from the runs, the serpenoid of every SnakeN id and the earlier CSV."""
+def speeds_from_csv(path, label: str, into=None) -> dict:
+    """{(algo, "ALGO (label)"): {n: [speed per seed]}} of the SnakeN rows of a CSV with columns env,
+    algo, seed, speed (m/s), added to ``into`` if given; other ids (Snake-v1, tasks) are skipped."""
     import csv
 
+    speeds = into if into is not None else defaultdict(lambda: defaultdict(list))
+    with open(path, newline="") as handle:
+        for row in csv.DictReader(handle):
+            if (m := SIZE_RE.match(row["env"])):
+                speeds[(row["algo"], f"{row['algo'].upper()} ({label})")][int(m["n"])].append(float(row["speed"]))
+    return speeds
+
+
+def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=None, measured_csv=None) -> None:
+    """speed_vs_n.png from the runs (and the measured CSV), the serpenoid of every SnakeN id and the
+    earlier CSV."""
     from snake_env.agents.search import load_gaits
     from snake_env.train.plots import plot_speed_vs_n
 
@@ -82,13 +96,9 @@ def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=No
         if (m := SIZE_RE.match(env)):
             learned[(algo, f"{algo.upper()} (this table)")][int(m["n"])] += [r["det"]["mean_forward_velocity"]
                                                                              for r in items]
-    earlier = defaultdict(lambda: defaultdict(list))
-    if earlier_csv:
-        with open(earlier_csv, newline="") as handle:
-            for row in csv.DictReader(handle):
-                if (m := SIZE_RE.match(row["env"])):
-                    earlier[(row["algo"], f"{row['algo'].upper()} (earlier campaign)")][int(m["n"])].append(
-                        float(row["speed"]))
+    if measured_csv:
+        speeds_from_csv(measured_csv, "this table", into=learned)
+    earlier = speeds_from_csv(earlier_csv, "earlier campaign") if earlier_csv else None
     plot_speed_vs_n(learned, serpenoid, path, earlier)
 
 
@@ -99,6 +109,8 @@ def main(argv=None) -> int:
     parser.add_argument("--extra-episodes", type=int, default=5, help="episodes for the stochastic/best columns")
     parser.add_argument("--images", help="copy learning curves here as curve_<env>_<algo>_s<seed>.png")
     parser.add_argument("--earlier", help="CSV (env, algo, seed, speed) of earlier measured runs for speed_vs_n.png")
+    parser.add_argument("--measured", help="CSV (env, algo, seed, speed) of this campaign's runs not under root, "
+                                           "drawn with them in speed_vs_n.png")
     args = parser.parse_args(argv)
     root = Path(args.root)
     runs = defaultdict(list)
@@ -135,7 +147,7 @@ def main(argv=None) -> int:
                   for key, items in runs.items()}
         plot_campaign(groups, {env: b["mean_forward_velocity"] for env, b in baselines.items()},
                       Path(args.images) / "curve_summary.png")
-        plot_sizes(root, runs, args.episodes, Path(args.images) / "speed_vs_n.png", args.earlier)
+        plot_sizes(root, runs, args.episodes, Path(args.images) / "speed_vs_n.png", args.earlier, args.measured)
     print("| env | algo | seeds | timesteps | wall time (min) | v_x deterministic (m/s) | ratio to serpenoid "
           "| v_x stochastic (m/s) | v_x best model (m/s) | serpenoid v_x (m/s) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
