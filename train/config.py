@@ -450,7 +450,9 @@ def policy_for(config: dict, observation_space) -> str:
 
 
 def torch_policy_kwargs(config: dict) -> dict:
-    """``policy_kwargs`` with activation names turned into torch classes."""
+    """``policy_kwargs`` with activation names turned into torch classes, and a features extractor
+    named by ``features_extractor_class`` (:data:`snake_env.train.extractors.EXTRACTORS`) turned
+    into its class with the env's observation layout as its kwargs."""
     import torch.nn as nn
 
     kwargs = policy_kwargs_dict(config["policy_kwargs"])
@@ -460,6 +462,17 @@ def torch_policy_kwargs(config: dict) -> dict:
         if not hasattr(nn, name) or name not in ACTIVATIONS.values():
             raise ConfigError(f"policy_kwargs.activation_fn must be one of {sorted(ACTIVATIONS)}, got {act!r}")
         kwargs["activation_fn"] = getattr(nn, name)
+    extractor = kwargs.get("features_extractor_class")
+    if isinstance(extractor, str):
+        from snake_env.train.extractors import EXTRACTORS, extractor_kwargs
+
+        if extractor not in EXTRACTORS:
+            raise ConfigError(f"policy_kwargs.features_extractor_class must be one of {sorted(EXTRACTORS)}, "
+                              f"got {extractor!r}")
+        kwargs["features_extractor_class"] = EXTRACTORS[extractor]
+        kwargs["features_extractor_kwargs"] = {
+            **extractor_kwargs(extractor, config["env_id"], dict(config.get("env_kwargs") or {})),
+            **dict(kwargs.get("features_extractor_kwargs") or {})}
     return kwargs
 
 

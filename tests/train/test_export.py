@@ -237,6 +237,9 @@ REACH = "snake_env/SnakeReach5-v0"
              "--set", "env_wrapper=[serpenoid_residual, goal_frame]"]),
     # SAC + HER, no normalization (the shipped SAC entry)
     ("sac", ["--set", "learning_starts=120", "--set", "buffer_size=2000", "--set", "batch_size=32"]),
+    # the same with the goal in the heading frame computed inside the policy (GoalFrameExtractor)
+    ("sac", ["--set", "learning_starts=120", "--set", "buffer_size=2000", "--set", "batch_size=32",
+             "--set", "policy_kwargs=dict(net_arch=[8], features_extractor_class='goal_frame')"]),
 ])
 def test_a_goal_task_policy_exports_one_input_per_key(tmp_path, algo, extra):
     """Dict observation (observation / achieved_goal / desired_goal): one named graph input per

@@ -20,8 +20,9 @@ TINY = ["--n-envs", "2", "--set", "env_kwargs.max_episode_steps=50", "--set", "e
         "--no-progress-bar"]
 
 
-@pytest.mark.parametrize("wrapper", [[], ["--set", "env_wrapper=null"]],
-                         ids=["shipped_steering_on_the_gait", "plain_joint_torques"])
+@pytest.mark.parametrize("wrapper", [[], ["--set", "env_wrapper=null"],
+                                     ["--set", "policy_kwargs=dict(net_arch=[8], features_extractor_class='goal_frame')"]],
+                         ids=["shipped_steering_on_the_gait", "plain_joint_torques", "goal_frame_extractor"])
 def test_sac_with_her_smoke_trains_on_reach_and_evaluates(tmp_path, capsys, wrapper):
     run_dir = tmp_path / "her"
     # HER samples only after a finished episode: 2 envs x 50 steps < learning_starts
