@@ -32,14 +32,20 @@ def zoo_env_wrapper(spec) -> list[dict]:
             for name, kwargs in parse_env_wrapper(spec)]
 
 
-def zoo_entry(entry: dict) -> dict:
+def zoo_entry(entry: dict, env_id: str | None = None) -> dict:
     """One env's hyperparameters in the zoo's form."""
     entry = {k: v for k, v in entry.items() if k not in PROJECT_ONLY_KEYS}
     if entry.get("env_wrapper") is not None:
         entry["env_wrapper"] = zoo_env_wrapper(entry["env_wrapper"])
     else:
         entry.pop("env_wrapper", None)
-    if isinstance(entry.get("policy_kwargs"), dict):
+    if entry.get("policy_kwargs") is not None and isinstance(
+            cfg.policy_kwargs_dict(entry["policy_kwargs"]).get("features_extractor_class"), str):
+        # the zoo evals a string policy_kwargs where no snake_env extractor is in scope: give it the
+        # class and its kwargs for this env, as snake-train builds them
+        entry["policy_kwargs"] = cfg.torch_policy_kwargs({"policy_kwargs": entry["policy_kwargs"], "env_id": env_id,
+                                                          "env_kwargs": entry.get("env_kwargs")})
+    elif isinstance(entry.get("policy_kwargs"), dict):
         entry["policy_kwargs"] = cfg.python_text(entry["policy_kwargs"])
     if isinstance(entry.get("normalize"), str):
         entry["normalize"] = cfg.parse_python_dict(entry["normalize"], "normalize")
@@ -50,5 +56,5 @@ def zoo_hyperparams(algo: str, path=None) -> dict:
     """``{env_id: hyperparameters}`` of ``configs/<algo>.yaml`` (or ``path``) for RL Zoo."""
     path = cfg.default_config_path(algo) if path is None else path
     data = cfg.read_yaml(path)
-    return {env_id: zoo_entry(cfg.coerce_scalar(dict(entry))) for env_id, entry in data.items()
+    return {env_id: zoo_entry(cfg.coerce_scalar(dict(entry)), env_id) for env_id, entry in data.items()
             if isinstance(entry, dict)}

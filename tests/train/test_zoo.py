@@ -34,8 +34,14 @@ def test_zoo_hyperparams_cover_our_configs_without_project_keys(algo):
         assert set(entry) <= allowed | {"env_wrapper", "callback"}, (env_id, set(entry) - allowed)
         if "env_wrapper" in entry:  # ours is {name: kwargs}; the zoo's a list of {"module.Class": kwargs}
             assert entry["env_wrapper"] and all(len(item) == 1 for item in entry["env_wrapper"]), env_id
-        if "policy_kwargs" in entry:
+        if isinstance(entry.get("policy_kwargs"), str):
             assert isinstance(eval(entry["policy_kwargs"]), dict)
+        elif "policy_kwargs" in entry:  # a features extractor of ours: the class itself, for this env's layout
+            from snake_env.train.extractors import GoalFrameExtractor
+
+            assert entry["policy_kwargs"]["features_extractor_class"] is GoalFrameExtractor, env_id
+            n_links = int(env_id.split("Reach")[1].split("-")[0])
+            assert entry["policy_kwargs"]["features_extractor_kwargs"] == {"n_links": n_links, "phi_start": 0}
         assert entry["n_timesteps"] == cfg.coerce_scalar(ours[env_id])["n_timesteps"]
 
 
