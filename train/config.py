@@ -464,15 +464,15 @@ def torch_policy_kwargs(config: dict) -> dict:
         kwargs["activation_fn"] = getattr(nn, name)
     extractor = kwargs.get("features_extractor_class")
     if isinstance(extractor, str):
-        from snake_env.train.extractors import EXTRACTORS, extractor_kwargs
+        from snake_env.train.extractors import EXTRACTORS
 
         if extractor not in EXTRACTORS:
             raise ConfigError(f"policy_kwargs.features_extractor_class must be one of {sorted(EXTRACTORS)}, "
                               f"got {extractor!r}")
-        kwargs["features_extractor_class"] = EXTRACTORS[extractor]
-        kwargs["features_extractor_kwargs"] = {
-            **extractor_kwargs(extractor, config["env_id"], dict(config.get("env_kwargs") or {})),
-            **dict(kwargs.get("features_extractor_kwargs") or {})}
+        extractor_class, layout = EXTRACTORS[extractor]
+        kwargs["features_extractor_class"] = extractor_class
+        kwargs["features_extractor_kwargs"] = {**layout(config["env_id"], dict(config.get("env_kwargs") or {})),
+                                               **dict(kwargs.get("features_extractor_kwargs") or {})}
     return kwargs
 
 

@@ -7,7 +7,7 @@ left). The wrapper computes it once from the goal the env drew, so HER's relabel
 would leave it stale. The extractor computes it from whatever ``desired_goal`` the batch
 holds, so it stays true for relabelled transitions and combines with ``HerReplayBuffer``.
 Select it in a config with ``policy_kwargs: "dict(features_extractor_class='goal_frame')"``;
-``snake-train`` fills in the observation layout of the env (:func:`extractor_kwargs`).
+``snake-train`` fills in the observation layout of the env (:func:`goal_frame_kwargs`).
 """
 
 from __future__ import annotations
@@ -66,19 +66,19 @@ class GoalFrameExtractor(BaseFeaturesExtractor):
         return torch.cat([obs, achieved, desired, ahead[:, None], left[:, None]], dim=1)
 
 
-EXTRACTORS = {"goal_frame": GoalFrameExtractor}
-
-
-def extractor_kwargs(name: str, env_id: str, env_kwargs: dict) -> dict:
-    """The keyword arguments of extractor ``name`` for the env ``env_id`` (its observation layout)."""
+def goal_frame_kwargs(env_id: str, env_kwargs: dict) -> dict:
+    """GoalFrameExtractor's keyword arguments for the env ``env_id``: its n and where phi starts,
+    read as the goal_frame wrapper reads them."""
     import snake_env  # noqa: F401  (registers the ids)
+    from snake_env.wrappers import _goal_frame_geometry
 
-    if name not in EXTRACTORS:
-        raise ValueError(f"features_extractor_class must be one of {sorted(EXTRACTORS)}, got {name!r}")
     env = gym.make(env_id, **env_kwargs)
     try:
-        base = env.unwrapped
-        start = 0 if getattr(base, "exclude_current_positions_from_observation", True) else 2
-        return {"n_links": int(base.n_links), "phi_start": start}
+        geometry = _goal_frame_geometry(env)
+        return {"n_links": geometry["n_links"], "phi_start": geometry["phi"].start}
     finally:
         env.close()
+
+
+# name in policy_kwargs -> (extractor class, its keyword arguments for an env id and env kwargs)
+EXTRACTORS = {"goal_frame": (GoalFrameExtractor, goal_frame_kwargs)}

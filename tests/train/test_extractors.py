@@ -7,7 +7,7 @@ import torch
 
 import snake_env  # noqa: F401
 from snake_env.train import config as cfg
-from snake_env.train.extractors import GoalFrameExtractor, extractor_kwargs
+from snake_env.train.extractors import GoalFrameExtractor, goal_frame_kwargs
 from snake_env.wrappers import wrap_vector_env
 
 REACH = "snake_env/SnakeReach8-v0"
@@ -21,7 +21,7 @@ def test_goal_frame_extractor_equals_the_goal_frame_wrapper_also_for_relabelled_
     spec = [{"steering_residual": {"baseline": "gait"}}]
     make = lambda: gym.make_vec(REACH, num_envs=4, vectorization_mode="vector_entry_point")  # noqa: E731
     plain, framed = wrap_vector_env(make(), spec), wrap_vector_env(make(), [*spec, "goal_frame"])
-    extractor = GoalFrameExtractor(plain.single_observation_space, **extractor_kwargs("goal_frame", REACH, {}))
+    extractor = GoalFrameExtractor(plain.single_observation_space, **goal_frame_kwargs(REACH, {}))
     assert extractor.features_dim == plain.single_observation_space["observation"].shape[0] + 6
     obs, _ = plain.reset(seed=5)
     framed_obs, _ = framed.reset(seed=5)
@@ -50,6 +50,10 @@ def test_goal_frame_is_chosen_by_name_in_policy_kwargs_and_bad_names_are_refused
     with pytest.raises(cfg.ConfigError, match=r"features_extractor_class must be one of \['goal_frame'\], "
                                               r"got 'goal_fram'"):
         cfg.torch_policy_kwargs(config)
+    forward = cfg.build_config("sac", "snake_env/Snake5-v1", overrides=[
+        "policy_kwargs=dict(features_extractor_class='goal_frame')"])
+    with pytest.raises(ValueError, match="goal_frame needs a goal task"):
+        cfg.torch_policy_kwargs(forward)
     box = gym.spaces.Box(-1.0, 1.0, (20,))
     with pytest.raises(ValueError, match="goal_frame needs a goal task's Dict observation"):
         GoalFrameExtractor(box, n_links=5)
