@@ -1,7 +1,12 @@
 """Reliability fuzz of the batched env: does any non-finite or non-physical value reach the agent?
 
     python -m snake_env.benchmarks.fuzz [--steps-per-cell N] [--num-envs B] [--seconds-per-cell S] [--quick]
-                              [--json PATH] [--markdown PATH] [--only TEXT]
+                              [--json PATH] [--markdown PATH] [--only TEXT] [--shard I/K]
+    python -m snake_env.benchmarks.fuzz --from-json PART.json [PART.json ...] --markdown PATH
+
+``--shard I/K`` runs every K-th setting (both paper_model cells of it) starting
+at the I-th (I = 0..K-1), so K processes or machines split the matrix; ``--from-json`` joins their JSON files
+into one report (rows in matrix order).
 
 The matrix of issue 10: n in {2, 3, 5, 12, 30, 100}, max_torque in {0.1, 1, 10,
 100} N m, length in {0.02, 0.2, 1} m, mass in {0.05, 1, 20} kg (inertia m L^2 / 12),
@@ -44,6 +49,7 @@ MAX_TORQUES = (0.1, 1.0, 10.0, 100.0)  # N m
 LENGTHS = (0.02, 0.2, 1.0)  # m
 MASSES = (0.05, 1.0, 20.0)  # kg
 PAPER_MODEL = (False, True)
+MATRIX_KEYS = ("n_links", "max_torque", "length", "mass", "inertia", "paper_model")
 ENV_DT = 0.04  # s, the default env step
 MAX_FRAME_SKIP = 64
 RESIDUAL_ROUNDING = 1e-9
@@ -217,13 +223,15 @@ def parse_args(argv):
                         help="stop a cell after S seconds of wall time (its row gives the env-steps it ran)")
     parser.add_argument("--quick", action="store_true", help="a few cells, 64 envs x 20 steps: checks that it runs")
     parser.add_argument("--only", default="", help="run only cells whose kwargs text contains this (e.g. \"'n_links': 5,\")")
+    parser.add_argument("--shard", default="0/1", metavar="I/K",
+                        help="run every K-th setting from the I-th, I in 0..K-1 (default 0/1: all)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--note", action="append", default=[], metavar="TEXT",
                         help="a line for the report's Notes section (e.g. the machine's load); repeatable")
     parser.add_argument("--json", metavar="PATH", help="write the rows as JSON")
-    parser.add_argument("--from-json", metavar="PATH",
-                        help="render the report from a saved --json (with --steps-per-cell, --num-envs and --wall-s "
-                             "of that run) instead of running")
+    parser.add_argument("--from-json", metavar="PATH", nargs="+",
+                        help="render the report from saved --json files (shards of one run, with --steps-per-cell, "
+                             "--num-envs and --wall-s of that run) instead of running")
     parser.add_argument("--wall-s", type=float, default=0.0, help="with --from-json: the saved run's wall time (s)")
     parser.add_argument("--markdown", metavar="PATH", help="write the report (docs/reliability.md)")
     args = parser.parse_args(argv)
@@ -231,7 +239,20 @@ def parse_args(argv):
         parser.error(f"--steps-per-cell must be >= 1 and --num-envs >= 2, got {args.steps_per_cell}, {args.num_envs}")
     if args.seconds_per_cell is not None and not args.seconds_per_cell > 0:
         parser.error(f"--seconds-per-cell must be > 0, got {args.seconds_per_cell}")
+    try:
+        index, count = (int(part) for part in args.shard.split("/"))
+        if not 0 <= index < count:
+            raise ValueError
+    except ValueError:
+        parser.error(f"--shard must be I/K with integers 0 <= I < K, got {args.shard!r}")
+    args.shard = (index, count)
     return args
+
+
+def _matrix_order(rows: list[dict]) -> list[dict]:
+    """Rows of one or more shards in the order of :func:`matrix`."""
+    order = {tuple(sorted(cell.items())): i for i, cell in enumerate(matrix())}
+    return sorted(rows, key=lambda r: order.get(tuple(sorted((k, r[k]) for k in r if k in MATRIX_KEYS)), len(order)))
 
 
 def main(argv=None) -> int:
@@ -239,11 +260,14 @@ def main(argv=None) -> int:
 
     args = parse_args(sys.argv[1:] if argv is None else argv)
     if args.from_json:
-        with open(args.from_json) as f:
-            rows = json.load(f)
+        rows = []
+        for path in args.from_json:
+            with open(path) as f:
+                rows += json.load(f)
+        rows = _matrix_order(rows)
         seconds = f" --seconds-per-cell {args.seconds_per_cell:g}" if args.seconds_per_cell else ""
         meta = {"command": f"python -m snake_env.benchmarks.fuzz --steps-per-cell {args.steps_per_cell} --num-envs "
-                           f"{args.num_envs}{seconds} --json {args.from_json}",
+                           f"{args.num_envs}{seconds} --json " + " ".join(args.from_json),
                 "steps_per_cell": args.steps_per_cell, "num_envs": args.num_envs, "wall_s": args.wall_s,
                 "seconds_per_cell": args.seconds_per_cell,
                 "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load": "shared machine",
@@ -254,6 +278,8 @@ def main(argv=None) -> int:
     cells = list(matrix())
     if args.only:
         cells = [c for c in cells if args.only in repr(c)]
+    # by pairs (paper_model off, on) of a setting, so every shard gets both kinds of cell
+    cells = [c for i, c in enumerate(cells) if (i // 2) % args.shard[1] == args.shard[0]]
     steps, num_envs = args.steps_per_cell, args.num_envs
     if args.quick:
         cells = [c for c in cells if (c["n_links"], c["max_torque"], c["length"], c["mass"]) in QUICK_CELLS]

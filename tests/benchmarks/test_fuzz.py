@@ -51,3 +51,32 @@ def test_fuzz_cli_rejects_a_non_positive_time_cap(capsys):
         fuzz.main(["--seconds-per-cell", "0"])
     assert exc.value.code == 2
     assert "--seconds-per-cell" in capsys.readouterr().err
+
+
+def test_shards_split_the_matrix_by_setting_and_join_into_one_report(tmp_path):
+    only = "'n_links': 2, 'max_torque': 0.1, 'length': 1.0"  # 3 masses x paper off/on: 6 cells
+    parts = []
+    for index in range(2):
+        js = tmp_path / f"shard{index}.json"
+        assert fuzz.main(["--steps-per-cell", "32", "--num-envs", "16", "--only", only, "--shard", f"{index}/2",
+                          "--json", str(js)]) == 0
+        parts.append(json.loads(js.read_text()))
+    # a setting's two cells (paper_model off, on) stay in one shard; the shards are disjoint and cover it
+    assert [len(p) for p in parts] == [4, 2]
+    for part in parts:
+        assert [r["paper_model"] for r in part] == [False, True] * (len(part) // 2)
+    masses = [{r["mass"] for r in p} for p in parts]
+    assert masses[0].isdisjoint(masses[1]) and masses[0] | masses[1] == {0.05, 1.0, 20.0}
+    md = tmp_path / "reliability.md"
+    assert fuzz.main(["--from-json", str(tmp_path / "shard1.json"), str(tmp_path / "shard0.json"),
+                      "--markdown", str(md)]) == 0
+    rows = [line for line in md.read_text().splitlines() if line.startswith("| 2 | 0.1 | 1 |")]
+    assert [line.split(" | ")[3:5] for line in rows] == [[m, p] for m in ("0.05", "1", "20") for p in ("no", "yes")]
+
+
+@pytest.mark.parametrize("shard", ["2/2", "1", "a/2", "0/0", "-1/2"])
+def test_fuzz_cli_rejects_a_bad_shard(capsys, shard):
+    with pytest.raises(SystemExit) as exc:
+        fuzz.main([f"--shard={shard}"])
+    assert exc.value.code == 2
+    assert "--shard must be I/K" in capsys.readouterr().err
