@@ -17,7 +17,7 @@ and reached 26 % / 17 % of the goals on n = 8 / 12 with Snake5's settings. Per n
 Neither goal set is ``snake-eval``'s (single-env episode seeds 0-99), so the
 evaluation there is on goals the search did not see.
 
-    python -m snake_env.agents.baseline_search --env snake_env/SnakeReach8-v0
+    python -m snake_env.agents.baseline_search --env snake_env/SnakeReach8-v1
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def _check_reach(env_id: str) -> None:
     except gym.error.Error as exc:
         raise ValueError(f"unknown env id {env_id!r}: {str(exc).splitlines()[0]}") from None
     if task != "reach":
-        raise ValueError(f"env must be a reach task id (snake_env/SnakeReach{{n}}-v0), got {env_id!r} (task {task!r})")
+        raise ValueError(f"env must be a reach task id (snake_env/SnakeReach{{n}}-v1), got {env_id!r} (task {task!r})")
 
 
 def _vector_env(env_id: str, num_envs: int, **kwargs):
@@ -151,7 +151,7 @@ def save_entry(task: str, n_links: int, entry: dict, path=BASELINE_SETTINGS) -> 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m snake_env.agents.baseline_search",
                                      description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", dest="env_id", required=True, help="a reach task id, e.g. snake_env/SnakeReach8-v0")
+    parser.add_argument("--env", dest="env_id", required=True, help="a reach task id, e.g. snake_env/SnakeReach8-v1")
     parser.add_argument("--episodes", type=int, default=200, help="goals per setting of the grid")
     parser.add_argument("--seed", type=int, default=1000, help="vector-env seed of the grid's goals")
     parser.add_argument("--validate-episodes", type=int, default=400, help="goals of the finalists' re-scoring")

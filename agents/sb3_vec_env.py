@@ -15,7 +15,7 @@ call per step for all sub-envs, instead of SB3's ``DummyVecEnv`` loop over
 Usage::
 
     from snake_env.agents.sb3_vec_env import SnakeSB3VecEnv
-    venv = SnakeSB3VecEnv("snake_env/Snake5-v1", num_envs=16, ctrl_cost_weight=1e-4)
+    venv = SnakeSB3VecEnv("snake_env/Snake5-v2", num_envs=16, ctrl_cost_weight=1e-4)
     venv = VecMonitor(venv)          # episode returns/lengths in infos["episode"]
     venv = VecNormalize(venv)        # save its statistics with the model
 """
@@ -39,7 +39,7 @@ class SnakeSB3VecEnv(VecEnv):
     """SB3 ``VecEnv`` of ``num_envs`` snakes stepped together.
 
     Args:
-        env: a registered id (e.g. ``"snake_env/Snake5-v1"``), built with
+        env: a registered id (e.g. ``"snake_env/Snake5-v2"``), built with
             ``gym.make_vec(env, num_envs, vectorization_mode="vector_entry_point",
             autoreset_mode="SameStep", **env_kwargs)``; or an existing
             :class:`SnakeVectorEnv` created with ``autoreset_mode="SameStep"``.

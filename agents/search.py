@@ -11,7 +11,7 @@ are re-scored on many full-length episodes and the best mean is written to ``con
 Score: mean forward speed of the snake's centre of mass, the mean of the
 env's ``info["x_velocity"]`` (m/s) over the episode, i.e. x displacement / time.
 
-    python -m snake_env.agents.search --env snake_env/Snake5-v1
+    python -m snake_env.agents.search --env snake_env/Snake5-v2
 """
 
 from __future__ import annotations
@@ -261,7 +261,7 @@ def gait_for_links(n_links: int, path=DEFAULT_OUTPUT) -> tuple[SerpenoidParams, 
     matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
     if not matches:
         raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (run: python -m "
-                         f"snake_env.agents.search --env snake_env/Snake{n_links}-v1)")
+                         f"snake_env.agents.search --env snake_env/Snake{n_links}-v2)")
     entry = gaits[matches[-1][1]]
     return SerpenoidParams.from_dict(entry["params"]), (entry.get("search") or {}).get("mean_forward_velocity")
 
@@ -285,7 +285,7 @@ def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAUL
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m snake_env.agents.search", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", dest="env_id", required=True, help="gymnasium env id, e.g. snake_env/Snake5-v1")
+    parser.add_argument("--env", dest="env_id", required=True, help="gymnasium env id, e.g. snake_env/Snake5-v2")
     parser.add_argument("--families", nargs="+", default=list(FAMILIES), help=f"subset of {list(FAMILIES)}")
     parser.add_argument("--population", type=int, default=192)
     parser.add_argument("--generations", type=int, default=10)

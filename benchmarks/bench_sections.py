@@ -23,7 +23,7 @@ SWIMMER_ID = "Swimmer-v5"
 
 
 def snake_id(n_links: int) -> str:
-    return f"snake_env/Snake{n_links}-v1"
+    return f"snake_env/Snake{n_links}-v2"
 
 
 def mujoco_available() -> tuple[bool, str]:
@@ -265,7 +265,7 @@ def status_mb(field):
                 return int(line.split()[1]) / 1024.0
 import gymnasium as gym, numpy as np, snake_env
 base = status_mb("VmRSS")
-envs = gym.make_vec("snake_env/Snake{n_links}-v1", num_envs={num_envs}, vectorization_mode="vector_entry_point")
+envs = gym.make_vec("snake_env/Snake{n_links}-v2", num_envs={num_envs}, vectorization_mode="vector_entry_point")
 envs.reset(seed=0)
 action = np.zeros(envs.action_space.shape, dtype=envs.action_space.dtype)
 for _ in range({steps}):
@@ -289,11 +289,11 @@ import json, time
 start = time.perf_counter()
 import gymnasium as gym
 import snake_env
-env = gym.make("snake_env/Snake{n_links}-v1")
+env = gym.make("snake_env/Snake{n_links}-v2")
 env.reset(seed=0)
 env.step(env.action_space.sample())
 single = time.perf_counter() - start
-envs = gym.make_vec("snake_env/Snake{n_links}-v1", num_envs=8, vectorization_mode="vector_entry_point")
+envs = gym.make_vec("snake_env/Snake{n_links}-v2", num_envs=8, vectorization_mode="vector_entry_point")
 envs.reset(seed=0)
 envs.step(envs.action_space.sample())
 print(json.dumps({{"import_and_first_step_s": single, "plus_vector_first_step_s": time.perf_counter() - start}}))

@@ -1,6 +1,6 @@
 """How much per-step action noise a searched serpenoid gait survives (docs/learning.md, note 4).
 
-    python -m snake_env.benchmarks.serpenoid_noise --env snake_env/Snake12-v1
+    python -m snake_env.benchmarks.serpenoid_noise --env snake_env/Snake12-v2
 
 Rows: the saved gait of configs/serpenoid.yaml as env torques (its own PD),
 plus Gaussian noise of std sigma (units of max_torque) on every action; and
@@ -64,7 +64,7 @@ def speeds(env_id: str, sigmas, envs: int, steps: int, seed: int, kp: float, kd:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m snake_env.benchmarks.serpenoid_noise", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", dest="env_id", default="snake_env/Snake12-v1")
+    parser.add_argument("--env", dest="env_id", default="snake_env/Snake12-v2")
     parser.add_argument("--sigmas", type=float, nargs="+", default=[0.0, 0.05, 0.135, 0.37, 1.0])
     parser.add_argument("--envs", type=int, default=8)
     parser.add_argument("--steps", type=int, default=500)

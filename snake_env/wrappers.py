@@ -764,7 +764,7 @@ def _goal_frame_geometry(env) -> dict:
     space = env.observation_space if not hasattr(env, "single_observation_space") else env.single_observation_space
     if not isinstance(space, spaces.Dict) or not {"observation", "achieved_goal", "desired_goal"} <= set(space.spaces):
         raise ValueError("goal_frame needs a goal task (Dict observation with observation, achieved_goal, "
-                         f"desired_goal), e.g. snake_env/SnakeReach5-v0; got {space}")
+                         f"desired_goal), e.g. snake_env/SnakeReach5-v1; got {space}")
     return g
 
 

@@ -19,7 +19,7 @@ from snake_env.wrappers import (CPGAction, CPGActionVector, GoalFrameObservation
                                 SerpenoidResidualActionVector, SteeringResidualAction, SteeringResidualActionVector,
                                 parse_env_wrapper, wrap_env, wrap_vector_env)
 
-ENV = "snake_env/Snake3-v1"
+ENV = "snake_env/Snake3-v2"
 
 
 def test_joint_target_sends_the_saturated_pd_torque_to_the_env():
@@ -27,8 +27,8 @@ def test_joint_target_sends_the_saturated_pd_torque_to_the_env():
     kp (target - phi) + kd ((target - previous target) / dt - phidot), clipped
     to the torque limit, computed from the last observation."""
     kp, kd = 3.0, 0.1
-    wrapped = JointTargetAction(gym.make("snake_env/Snake5-v1", max_torque=2.0), kp=kp, kd=kd)
-    plain = gym.make("snake_env/Snake5-v1", max_torque=2.0)
+    wrapped = JointTargetAction(gym.make("snake_env/Snake5-v2", max_torque=2.0), kp=kp, kd=kd)
+    plain = gym.make("snake_env/Snake5-v2", max_torque=2.0)
     obs, _ = wrapped.reset(seed=4)
     plain_obs, _ = plain.reset(seed=4)
     rng = np.random.default_rng(0)
@@ -179,7 +179,7 @@ def test_clock_wrappers_restart_on_same_step_autoreset_and_clock_the_final_obs(s
     ({"cpg": {"frequency": 5.0}}, "env_wrapper 'cpg': "),
     ({"serpenoid_residual": {"scale": 0.0}}, "scale must be a finite number > 0.0"),
     ({"serpenoid_residual": {"scale": 3.0}}, "scale must be in (0, 2]"),
-    ({"serpenoid_residual": {"gait": "snake_env/Snake99-v1"}}, "no serpenoid gait for env 'snake_env/Snake99-v1'"),
+    ({"serpenoid_residual": {"gait": "snake_env/Snake99-v2"}}, "no serpenoid gait for env 'snake_env/Snake99-v2'"),
     ("steering_residual", "steering_residual needs a task whose baseline steers the gait (path, command, reach)"),
 ])
 def test_bad_wrapper_specs_are_rejected_with_one_line(spec, message):
@@ -201,7 +201,7 @@ def test_train_config_rejects_a_bad_wrapper_name_in_one_line():
     from snake_env.train.config import ConfigError, build_config
 
     with pytest.raises(ConfigError) as info:
-        build_config("ppo", "snake_env/Snake12-v1", overrides=["env_wrapper={joint_targte: {kp: 1.0}}"])
+        build_config("ppo", "snake_env/Snake12-v2", overrides=["env_wrapper={joint_targte: {kp: 1.0}}"])
     assert "env_wrapper name must be one of" in str(info.value) and "\n" not in str(info.value)
 
 
@@ -209,7 +209,7 @@ def test_a_constant_cpg_action_is_the_searched_serpenoid():
     """CPG-RL action mode against the serpenoid controller: the action that encodes a
     searched ``pd`` gait gives the controller's env actions step for step (the phase is
     summed as omega dt and wrapped, the controller's is omega t: equal to rounding)."""
-    env_id = "snake_env/Snake12-v1"
+    env_id = "snake_env/Snake12-v2"
     params, _ = load_params(env_id)
     cpg = CPGAction(gym.make(env_id), kp=params.kp, kd=params.kd)
     plain = gym.make(env_id)
@@ -239,8 +239,8 @@ ONE_COMMAND = {"speed_range": (0.3, 0.3), "yaw_rate_range": (0.2, 0.2)}
 
 @pytest.mark.parametrize("single_cls, vector_cls, env_id, env_kwargs, kwargs", [
     (CPGAction, CPGActionVector, ENV, {}, {"max_frequency": 30.0}),
-    (SerpenoidResidualAction, SerpenoidResidualActionVector, "snake_env/Snake5-v1", {}, {}),
-    (SteeringResidualAction, SteeringResidualActionVector, "snake_env/SnakeCommand5-v0", ONE_COMMAND,
+    (SerpenoidResidualAction, SerpenoidResidualActionVector, "snake_env/Snake5-v2", {}, {}),
+    (SteeringResidualAction, SteeringResidualActionVector, "snake_env/SnakeCommand5-v1", ONE_COMMAND,
      {"offset_scale": 0.3}),
 ], ids=["cpg", "serpenoid_residual", "steering_residual"])
 def test_clocked_action_wrappers_batch_and_restart_their_clock_on_autoreset(single_cls, vector_cls, env_id,
@@ -263,11 +263,11 @@ def test_cpg_wrapped_env_passes_gymnasiums_env_checker():
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # "wrapped env" and unbounded-Box advice
-        check_env(CPGAction(gym.make("snake_env/Snake5-v1")), skip_render_check=True)
+        check_env(CPGAction(gym.make("snake_env/Snake5-v2")), skip_render_check=True)
 
 
 def test_serpenoid_residual_with_zero_action_is_the_searched_gait_and_a_correction_adds_torque():
-    env_id = "snake_env/Snake12-v1"
+    env_id = "snake_env/Snake12-v2"
     params, _ = load_params(env_id)
     residual = SerpenoidResidualAction(gym.make(env_id), scale=0.25)
     plain = gym.make(env_id)
@@ -293,8 +293,8 @@ def test_serpenoid_residual_with_zero_action_is_the_searched_gait_and_a_correcti
     np.testing.assert_allclose(recorder["action"], expected, atol=1e-6)
 
 
-@pytest.mark.parametrize("env_id, controller_name", [("snake_env/SnakePath5-v1", "LineOfSightController"),
-                                                     ("snake_env/SnakeCommand5-v0", "SteeringController")])
+@pytest.mark.parametrize("env_id, controller_name", [("snake_env/SnakePath5-v2", "LineOfSightController"),
+                                                     ("snake_env/SnakeCommand5-v1", "SteeringController")])
 def test_serpenoid_residual_on_a_task_starts_at_the_tasks_baseline(env_id, controller_name):
     """Zero action = the baseline of snake-eval --baseline (line of sight, steering) step for step."""
     from snake_env.agents import path_following
@@ -320,8 +320,8 @@ def test_serpenoid_residual_on_the_reach_task_starts_at_goal_seeking_and_extends
 
     params, speed = gait_for_links(5)
     baseline = GoalSeekingController(params, 5, 1.0, 0.04, gait_speed=float(speed))
-    residual = SerpenoidResidualAction(gym.make("snake_env/SnakeReach5-v0"))
-    plain = gym.make("snake_env/SnakeReach5-v0")
+    residual = SerpenoidResidualAction(gym.make("snake_env/SnakeReach5-v1"))
+    plain = gym.make("snake_env/SnakeReach5-v1")
     space = residual.observation_space
     assert isinstance(space, gym.spaces.Dict) and space["observation"].shape == (14,)
     assert space["desired_goal"] == plain.observation_space["desired_goal"]
@@ -339,7 +339,7 @@ def test_serpenoid_residual_on_the_reach_task_starts_at_goal_seeking_and_extends
 
 
 def test_serpenoid_residual_vector_on_the_reach_task_phases_the_final_dict_observation():
-    vector = SerpenoidResidualActionVector(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2,
+    vector = SerpenoidResidualActionVector(gym.make_vec("snake_env/SnakeReach5-v1", num_envs=2,
                                                         vectorization_mode="vector_entry_point",
                                                         autoreset_mode=AutoresetMode.SAME_STEP,
                                                         max_episode_steps=5))
@@ -364,9 +364,9 @@ def test_observe_mode_appends_goal_seekings_hidden_state_and_makes_its_action_a_
     from snake_env.agents.path_following import GoalSeekingController
 
     spec = {"serpenoid_residual": {"observe_mode": True}}
-    single = wrap_env(gym.make("snake_env/SnakeReach12-v0"), spec)
+    single = wrap_env(gym.make("snake_env/SnakeReach12-v1"), spec)
     assert single.observation_space["observation"].shape == (26 + 2 + 2,)
-    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach12-v0", num_envs=1,
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach12-v1", num_envs=1,
                                           vectorization_mode="vector_entry_point"), spec)
     obs, _ = single.reset(seed=5)
     vobs, _ = vector.reset(seed=5)
@@ -388,14 +388,14 @@ def test_observe_mode_appends_goal_seekings_hidden_state_and_makes_its_action_a_
             break
     assert (0.0, 0.0) in modes and len(modes) > 1 and mode_mattered  # the reset's zeros, then a direction
     with pytest.raises(ValueError, match="observe_mode needs a baseline with a hidden mode.*LineOfSightController"):
-        wrap_env(gym.make("snake_env/SnakePath5-v1"), spec)
+        wrap_env(gym.make("snake_env/SnakePath5-v2"), spec)
     with pytest.raises(ValueError, match="observe_mode must be true or false"):
-        wrap_env(gym.make("snake_env/SnakeReach5-v0"), {"serpenoid_residual": {"observe_mode": "yes"}})
+        wrap_env(gym.make("snake_env/SnakeReach5-v1"), {"serpenoid_residual": {"observe_mode": "yes"}})
     assert isinstance(single.controller, GoalSeekingController)
 
 
 def test_observe_mode_final_obs_keeps_the_episodes_last_mode():
-    vector = SerpenoidResidualActionVector(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2,
+    vector = SerpenoidResidualActionVector(gym.make_vec("snake_env/SnakeReach5-v1", num_envs=2,
                                                         vectorization_mode="vector_entry_point",
                                                         autoreset_mode=AutoresetMode.SAME_STEP,
                                                         max_episode_steps=5), observe_mode=True)
@@ -411,7 +411,7 @@ def test_observe_mode_final_obs_keeps_the_episodes_last_mode():
 
 
 def test_serpenoid_residual_refuses_a_task_without_a_baseline(monkeypatch):
-    env = gym.make("snake_env/Snake5-v1")
+    env = gym.make("snake_env/Snake5-v2")
     monkeypatch.setattr(env.unwrapped, "task", type("Dance", (), {"name": "dance"})())
     with pytest.raises(ValueError, match="needs a task with a baseline controller.*got task 'dance'"):
         SerpenoidResidualAction(env)
@@ -423,7 +423,7 @@ def test_goal_frame_is_the_goal_rotated_into_the_mean_heading_frame():
     and its angle is the goal's bearing from theta_bar."""
     from snake_env.tasks.base import mean_heading
 
-    env = wrap_env(gym.make("snake_env/SnakeReach5-v0"), ["serpenoid_residual", "goal_frame"])
+    env = wrap_env(gym.make("snake_env/SnakeReach5-v1"), ["serpenoid_residual", "goal_frame"])
     space = env.observation_space
     assert space["observation"].shape == (16,) and np.isinf(space["observation"].high[-2:]).all()
     obs, _ = env.reset(seed=3)
@@ -451,10 +451,10 @@ def test_goal_frame_vector_matches_single_envs_and_passes_the_env_checker():
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # "wrapped env" and unbounded-Box advice
-        check_env(GoalFrameObservation(gym.make("snake_env/SnakeReach5-v0")), skip_render_check=True)
+        check_env(GoalFrameObservation(gym.make("snake_env/SnakeReach5-v1")), skip_render_check=True)
     spec = ["serpenoid_residual", "goal_frame"]
-    single = wrap_env(gym.make("snake_env/SnakeReach5-v0"), spec)
-    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=1,
+    single = wrap_env(gym.make("snake_env/SnakeReach5-v1"), spec)
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach5-v1", num_envs=1,
                                           vectorization_mode="vector_entry_point"), spec)
     single_obs, _ = single.reset(seed=4)
     obs, _ = vector.reset(seed=4)
@@ -468,7 +468,7 @@ def test_goal_frame_vector_matches_single_envs_and_passes_the_env_checker():
 
 
 def test_goal_frame_vector_extends_the_final_obs_of_same_step_autoreset():
-    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach5-v1", num_envs=2, vectorization_mode="vector_entry_point",
                                           autoreset_mode=AutoresetMode.SAME_STEP, max_episode_steps=5),
                              ["serpenoid_residual", "goal_frame"])
     assert vector.single_observation_space["observation"].shape == (16,)
@@ -487,21 +487,21 @@ def test_goal_frame_vector_extends_the_final_obs_of_same_step_autoreset():
 
 def test_goal_frame_refuses_a_task_without_goals():
     with pytest.raises(ValueError, match="goal_frame needs a goal task"):
-        GoalFrameObservation(gym.make("snake_env/Snake5-v1"))
+        GoalFrameObservation(gym.make("snake_env/Snake5-v2"))
 
 
 def test_train_config_refuses_goal_reading_wrappers_with_her():
     from snake_env.train import config as cfg
 
-    assert cfg.build_config("sac", "snake_env/SnakeReach5-v0")["replay_buffer_class"] == "HerReplayBuffer"
+    assert cfg.build_config("sac", "snake_env/SnakeReach5-v1")["replay_buffer_class"] == "HerReplayBuffer"
     with pytest.raises(cfg.ConfigError, match=r"env_wrapper \['goal_frame'\] does not combine with .*HerReplayBuffer"):
-        cfg.build_config("sac", "snake_env/SnakeReach5-v0", overrides=["env_wrapper=goal_frame"])
+        cfg.build_config("sac", "snake_env/SnakeReach5-v1", overrides=["env_wrapper=goal_frame"])
     with pytest.raises(cfg.ConfigError, match=r"env_wrapper \['steering_residual'\] does not combine"):
-        cfg.build_config("sac", "snake_env/SnakeReach5-v0", overrides=["env_wrapper=steering_residual"])
+        cfg.build_config("sac", "snake_env/SnakeReach5-v1", overrides=["env_wrapper=steering_residual"])
 
 
-@pytest.mark.parametrize("env_id, n_links", [("snake_env/SnakePath12-v1", 12), ("snake_env/SnakeCommand5-v0", 5),
-                                             ("snake_env/SnakeReach12-v0", 12)])
+@pytest.mark.parametrize("env_id, n_links", [("snake_env/SnakePath12-v2", 12), ("snake_env/SnakeCommand5-v1", 5),
+                                             ("snake_env/SnakeReach12-v1", 12)])
 def test_steering_residual_with_zero_action_is_the_tasks_baseline(env_id, n_links):
     """Zero action = the baseline of snake-eval --baseline (with its configs/baselines.yaml settings) step for step."""
     from snake_env.agents.path_following import make_baseline
@@ -528,7 +528,7 @@ def test_steering_residual_on_the_forward_task_starts_at_the_searched_serpenoid(
     from snake_env.agents.search import load_params
     from snake_env.agents.serpenoid import SerpenoidController
 
-    env_id = "snake_env/Snake20-v1"
+    env_id = "snake_env/Snake20-v2"
     residual = SteeringResidualAction(gym.make(env_id), baseline="gait")
     plain = gym.make(env_id)
     serpenoid = SerpenoidController(load_params(env_id)[0], n_links=20, max_torque=plain.unwrapped.max_torque,
@@ -551,7 +551,7 @@ def test_steering_residual_on_the_forward_task_starts_at_the_searched_serpenoid(
 def test_steering_residual_corrects_the_offset_and_the_gait_frequency():
     """A unit action sends the PD serpenoid's torque for offset + offset_scale and frequency x (1 + speed_range);
     a positive offset correction turns the snake left (its yaw rate rises), as gamma does in the baseline."""
-    env_id = "snake_env/SnakeCommand5-v0"
+    env_id = "snake_env/SnakeCommand5-v1"
     residual = SteeringResidualAction(gym.make(env_id), offset_scale=0.1, speed_range=0.5)
     obs, _ = residual.reset(seed=0)
     for _ in range(5):
@@ -592,11 +592,11 @@ def test_steering_residual_on_reach_passes_the_env_checker_and_batches_its_dict_
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        check_env(SteeringResidualAction(gym.make("snake_env/SnakeReach8-v0"), observe_mode=True),
+        check_env(SteeringResidualAction(gym.make("snake_env/SnakeReach8-v1"), observe_mode=True),
                   skip_render_check=True)
     spec = [{"steering_residual": {"observe_mode": True}}, "goal_frame"]
-    single = wrap_env(gym.make("snake_env/SnakeReach8-v0"), spec)
-    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach8-v0", num_envs=1,  # one row: the same goal draw
+    single = wrap_env(gym.make("snake_env/SnakeReach8-v1"), spec)
+    vector = wrap_vector_env(gym.make_vec("snake_env/SnakeReach8-v1", num_envs=1,  # one row: the same goal draw
                                           vectorization_mode="vector_entry_point"), spec)
     assert vector.single_observation_space == single.observation_space
     obs, _ = single.reset(seed=4)
@@ -611,7 +611,7 @@ def test_steering_residual_on_reach_passes_the_env_checker_and_batches_its_dict_
         if terminated or truncated:
             break
     with pytest.raises(ValueError, match=r"offset_scale must be in \(0, 1\] rad and speed_range in \[0, 1\]"):
-        wrap_env(gym.make("snake_env/SnakeReach8-v0"), {"steering_residual": {"offset_scale": 2.0}})
+        wrap_env(gym.make("snake_env/SnakeReach8-v1"), {"steering_residual": {"offset_scale": 2.0}})
 
 
 def test_steering_residual_on_the_straight_gait_reads_no_goal():
@@ -619,7 +619,7 @@ def test_steering_residual_on_the_straight_gait_reads_no_goal():
     frequency) whatever the goal, so HER may relabel goals; the gait moves the snake at its searched speed."""
     from snake_env.agents.search import gait_for_links
 
-    env = SteeringResidualAction(gym.make("snake_env/SnakeReach5-v0"), baseline="gait", offset_scale=0.3)
+    env = SteeringResidualAction(gym.make("snake_env/SnakeReach5-v1"), baseline="gait", offset_scale=0.3)
     obs, _ = env.reset(seed=0)
     moved = {**obs, "desired_goal": obs["desired_goal"] + 5.0}  # another goal: the same action
     np.testing.assert_array_equal(copy.deepcopy(env.controller).act(moved), copy.deepcopy(env.controller).act(obs))
@@ -635,12 +635,12 @@ def test_steering_residual_on_the_straight_gait_reads_no_goal():
         speeds.append(math.hypot(info["x_velocity"], info["y_velocity"]))
     assert np.mean(speeds[20:]) > 0.8 * gait_for_links(5)[1]
     with pytest.raises(ValueError, match=r"baseline must be one of \['task', 'gait'\], got 'goal'"):
-        SteeringResidualAction(gym.make("snake_env/SnakeReach5-v0"), baseline="goal")
+        SteeringResidualAction(gym.make("snake_env/SnakeReach5-v1"), baseline="goal")
     with pytest.raises(ValueError, match="observe_mode needs a baseline with a hidden mode.*StraightGait"):
-        SteeringResidualAction(gym.make("snake_env/SnakeReach5-v0"), baseline="gait", observe_mode=True)
+        SteeringResidualAction(gym.make("snake_env/SnakeReach5-v1"), baseline="gait", observe_mode=True)
     # goal-free: the config lets HER relabel its goals
     from snake_env.train import config as cfg
 
-    config = cfg.build_config("sac", "snake_env/SnakeReach5-v0",
+    config = cfg.build_config("sac", "snake_env/SnakeReach5-v1",
                               overrides=["env_wrapper={steering_residual: {baseline: gait}}"])
     assert config["replay_buffer_class"] == "HerReplayBuffer"

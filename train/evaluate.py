@@ -4,10 +4,10 @@ Examples::
 
     snake-eval runs/Snake5-v1__ppo__s0__20260101-120000 --episodes 5 --json eval.json
     snake-eval runs/.../checkpoints/model_200000_steps.zip --plot cm.png --video snake.gif
-    snake-eval --baseline serpenoid --env snake_env/Snake5-v1 --json serpenoid.json
-    snake-eval --baseline los --env snake_env/SnakePath5-v1 --json los.json
-    snake-eval --baseline steering --env snake_env/SnakeCommand5-v0
-    snake-eval --baseline homing --env snake_env/SnakeReach5-v0
+    snake-eval --baseline serpenoid --env snake_env/Snake5-v2 --json serpenoid.json
+    snake-eval --baseline los --env snake_env/SnakePath5-v2 --json los.json
+    snake-eval --baseline steering --env snake_env/SnakeCommand5-v1
+    snake-eval --baseline homing --env snake_env/SnakeReach5-v1
     snake-eval --onnx policy.onnx --episodes 5   # onnxruntime only: neither torch nor SB3 is imported
 
 The env id, env kwargs and VecNormalize statistics come from the run's

@@ -67,7 +67,7 @@ def fmt(values) -> str:
 
 def speeds_from_csv(path, label: str, into=None) -> dict:
     """{(algo, "ALGO (label)"): {n: [speed per seed]}} of the SnakeN rows of a CSV with columns env,
-    algo, seed, speed (m/s), added to ``into`` if given; other ids (Snake-v1, tasks) are skipped."""
+    algo, seed, speed (m/s), added to ``into`` if given; other ids (Snake-v2, tasks) are skipped."""
     import csv
 
     speeds = into if into is not None else defaultdict(lambda: defaultdict(list))

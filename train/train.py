@@ -2,8 +2,8 @@
 
 Examples::
 
-    snake-train --algo ppo --env snake_env/Snake5-v1
-    snake-train --algo sac --env snake_env/Snake3-v1 --set learning_rate=1e-3 --total-timesteps 50000
+    snake-train --algo ppo --env snake_env/Snake5-v2
+    snake-train --algo sac --env snake_env/Snake3-v2 --set learning_rate=1e-3 --total-timesteps 50000
     snake-train --resume runs/Snake5-v1__ppo__s0__20260101-120000
 
 The run directory holds ``config.yaml`` (the one merged config), ``model.zip``
@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train a PPO/SAC locomotion policy on a snake env (Stable-Baselines3, RL Zoo conventions).",
     )
     parser.add_argument("--algo", help=f"algorithm, one of {list(cfg.ALGOS)}")
-    parser.add_argument("--env", dest="env_id", help="gymnasium env id, e.g. snake_env/Snake5-v1")
+    parser.add_argument("--env", dest="env_id", help="gymnasium env id, e.g. snake_env/Snake5-v2")
     parser.add_argument("--config", help="hyperparameter YAML keyed by env id (default ./configs/<algo>.yaml if it "
                                                           "exists, else the one shipped with snake_env)")
     parser.add_argument("--total-timesteps", type=int, help="environment steps to train (overrides n_timesteps)")

@@ -2,9 +2,9 @@
 
 Examples::
 
-    snake-tune --algo ppo --env snake_env/Snake5-v1 --n-trials 30 --n-timesteps 150000 --out tuning/snake5_ppo
+    snake-tune --algo ppo --env snake_env/Snake5-v2 --n-trials 30 --n-timesteps 150000 --out tuning/snake5_ppo
     # many workers on one study: the same command in N processes or on N machines
-    snake-tune --algo ppo --env snake_env/Snake5-v1 --n-trials 10 --n-timesteps 150000 --out tuning/w1 \\
+    snake-tune --algo ppo --env snake_env/Snake5-v2 --n-trials 10 --n-timesteps 150000 --out tuning/w1 \\
         --storage postgresql+psycopg://snake@dbhost:5432/optuna
 
 A trial is one snake-train run with sampled hyperparameters
@@ -56,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="snake-tune",
         description="Hyperparameter search for snake-train (PPO/SAC) on Optuna; many workers may share a study.")
     parser.add_argument("--algo", metavar="{ppo,sac}", help=f"algorithm, one of {list(cfg.ALGOS)}")
-    parser.add_argument("--env", metavar="ID", dest="env_id", help="registered env id, e.g. snake_env/Snake5-v1")
+    parser.add_argument("--env", metavar="ID", dest="env_id", help="registered env id, e.g. snake_env/Snake5-v2")
     parser.add_argument("--n-trials", metavar="N", type=int, help="trials this process runs (they add to the study)")
     parser.add_argument("--n-timesteps", metavar="T", type=int, help="training steps per trial (summed over envs)")
     parser.add_argument("--n-envs", metavar="K", type=int, help="parallel envs per trial (default: the config entry's n_envs)")
@@ -66,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="evaluations (reports to the pruner) per trial, evenly spaced (default 5)")
     parser.add_argument("--storage", metavar="URL", help="SQLAlchemy URL of the study (default sqlite:///DIR/study.db), "
                                           "e.g. postgresql+psycopg://user@host:5432/db")
-    parser.add_argument("--study-name", metavar="NAME", help="study name (default <algo>-<env name>, e.g. ppo-Snake5-v1)")
+    parser.add_argument("--study-name", metavar="NAME", help="study name (default <algo>-<env name>, e.g. ppo-Snake5-v2)")
     parser.add_argument("--seed", metavar="S", type=int, help="training seed of every trial (default the entry's or 0); "
                                                   "also seeds the sampler (give workers of one study different seeds)")
     parser.add_argument("--timeout", metavar="SECONDS", type=float, help="stop starting trials after this many seconds")

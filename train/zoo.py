@@ -7,8 +7,8 @@ file or a Python module with a ``hyperparams`` dict keyed by env id. Our
 torch threads); :func:`zoo_hyperparams` drops those, so the modules
 :mod:`snake_env.train.zoo_ppo` and :mod:`snake_env.train.zoo_sac` are zoo configs::
 
-    python -m rl_zoo3.train --algo ppo --env snake_env/Snake5-v1 --gym-packages snake_env -conf snake_env.train.zoo_ppo
-    python -m rl_zoo3.enjoy --algo ppo --env snake_env/Snake5-v1 --gym-packages snake_env -f logs --no-render
+    python -m rl_zoo3.train --algo ppo --env snake_env/Snake5-v2 --gym-packages snake_env -conf snake_env.train.zoo_ppo
+    python -m rl_zoo3.enjoy --algo ppo --env snake_env/Snake5-v2 --gym-packages snake_env -f logs --no-render
 
 The zoo then trains with its own scripts (DummyVecEnv over single envs, its own
 logging, Optuna tuning with ``-optimize``) and saves in its own layout

@@ -44,6 +44,12 @@ still fails, the step is a simulation failure: the pre-step state is kept
 (its observation is returned again, velocity and work 0) and aux[AUX_FAILED]
 holds the reason code (FAIL_*). The result of a snake still does not depend
 on the batch it is in.
+A fold is not refined (v2): a step that passes every accuracy check (error
+estimate, work-energy balance, substep angle) and ends folded is a failure at
+once. Refinement buys accuracy, and this step is already accurate; the fold is
+the model's (no link contact), not the integrator's. Refining it cost up to 127
+substeps' work per failing snake and ran fold-heavy paper-model settings at a
+few hundred env-steps/s; the finer steps folded too (docs/reliability.md).
 A snake whose link angles exceed ``compiled.LANE_ANGLE_MAX`` (1e5 rad, only
 after thousands of turns) is stepped by the per-snake kernel
 (:func:`_step_one`, libm sin/cos) instead.
@@ -266,12 +272,14 @@ def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
                        err_tol, r_first, r_last, q0, u0, torques, k0, q, u):
     """One env step of one snake from (q0, u0) (kinetic energy k0) by the per-snake RK4
     kernel, with substeps sim_dt / 2^r for r = r_first, ..., r_last until one passes the
-    check. Returns (code, work (J), r, residual); (q, u) hold the accepted state, or
-    (q0, u0) when every attempt failed (code != 0, work 0)."""
+    check or one fails by a fold. Returns (code, work (J), r, residual); (q, u) hold the
+    accepted state, or (q0, u0) when the step failed (code != 0, work 0)."""
     nq = q.shape[0]
     code = FAIL_NONFINITE
     residual = math.inf
+    used = r_last
     for r in range(r_first, r_last + 1):
+        used = r
         for j in range(nq):
             q[j] = q0[j]
         u[0] = u0[0]
@@ -292,11 +300,13 @@ def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
         code, residual = _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, tol, e_floor)
         if code == 0:
             return 0, work, r, residual
+        if code == FAIL_FOLD:  # accurate and folded: a finer substep would fold too (module doc)
+            break
     for j in range(nq):
         q[j] = q0[j]
     u[0] = u0[0]
     u[1] = u0[1]
-    return code, 0.0, r_last, residual
+    return code, 0.0, used, residual
 
 
 @njit(cache=True, nogil=True)
@@ -488,7 +498,7 @@ def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s
         b = index[start + l]
         work = 0.0
         r = 0
-        if max_ref > 0:
+        if max_ref > 0 and code != FAIL_FOLD:  # an accurate fold is final (module doc)
             code, work, r, residual = _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
                                                          sim_dt, frame_skip, tol, e_floor, err_tol, 1, max_ref, q[b],
                                                          u[b], torques[b], k0, q1, u1)

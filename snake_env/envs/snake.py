@@ -32,7 +32,7 @@ __all__ = ["SnakeEnv", "SnakeGoalEnv", "STEP_INFO_KEYS", "RESET_INFO_KEYS", "TRA
 
 class SnakeEnv(TaskEnvBase, gym.Env):
     """One snake doing one task; ``task`` names it (default "forward", the
-    ``snake_env/Snake{n}-v1`` task), every other kwarg is a field of
+    ``snake_env/Snake{n}-v2`` task), every other kwarg is a field of
     :class:`~snake_env.envs.config.PhysicsConfig` or of the task class, whose
     docstring is the spec. Unknown kwargs raise a one-line ``ValueError``.
     """

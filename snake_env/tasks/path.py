@@ -1,4 +1,4 @@
-"""Follow a path: a line, a circle or a sine (``snake_env/SnakePath{n}-v1``)."""
+"""Follow a path: a line, a circle or a sine (``snake_env/SnakePath{n}-v2``)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ class PathTask(Task):
     r"""Follow a planar path with the snake's centre of mass: a straight line, a circle or a sine.
 
     ## Description
-    The snake of `snake_env/Snake{n}-v1` (same physics, actions, start state;
+    The snake of `snake_env/Snake{n}-v2` (same physics, actions, start state;
     CM at the origin, heading near +x) follows a path given in its start
     frame, shifted sideways by a cross-track offset d = +-`initial_offset`
     (sign drawn at reset) so that the snake starts off the path:
@@ -36,11 +36,11 @@ class PathTask(Task):
     The heading is the mean link angle theta_bar (Liljebäck et al. 2011).
 
     ## Action Space
-    As `snake_env/Snake{n}-v1`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
+    As `snake_env/Snake{n}-v2`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
 
     ## Observation Space
     `Box(-inf, inf, (2 n + 6,), float64)`: the physics observation of
-    `Snake{n}-v1` (2 n + 2 entries), then:
+    `Snake{n}-v2` (2 n + 2 entries), then:
 
     | Num | Observation | Unit |
     |-----|-------------|------|
@@ -59,14 +59,14 @@ class PathTask(Task):
     `reward_ctrl`, `cross_track_error` (e, m), `path_speed` (v_t, m/s).
 
     ## Starting State
-    As `Snake{n}-v1`; the offset sign is drawn from the env's generator.
+    As `Snake{n}-v2`; the offset sign is drawn from the env's generator.
 
     ## Episode End
     - Termination: when |e| > `max_cross_track_error` (m).
     - Truncation: after 1000 steps (40 s), or on a simulator failure.
 
     ## Arguments
-    The physical arguments of `Snake{n}-v1`, `reset_noise_scale`, and:
+    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|
@@ -80,6 +80,11 @@ class PathTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v2: a step that meets every accuracy check but ends folded (|phi_k| reaches
+      FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
+      times (the finer substeps folded too). Only settings that can fold differ
+      (`paper_model=True`, `joint_limit=None`); with the default joint limit
+      no step folded in the fuzz (docs/reliability.md), so those runs equal v1.
     * v1: the progress term is the CM velocity along the path tangent (was the
       rate of the closest point's arc length, ds/dt: near a circle's centre
       the closest point swings round the circle for small motions, and a PPO

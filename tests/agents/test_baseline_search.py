@@ -62,14 +62,14 @@ def test_bad_task_is_rejected():
 
 
 def test_the_residual_wrapper_steers_with_the_settings_of_its_n():
-    residual = SerpenoidResidualAction(gym.make("snake_env/SnakeReach12-v0"))
+    residual = SerpenoidResidualAction(gym.make("snake_env/SnakeReach12-v1"))
     settings = baseline_settings("reach", 12)
     controller = residual.controller
     assert {name: getattr(controller, name) for name in settings} == settings
 
 
 def test_turning_gain_is_positive_and_the_yaw_rate_proportional_to_the_offset():
-    gain, rates = measure_turn_gain("snake_env/SnakeReach5-v0", offsets=(0.05, 0.1, 0.2), starts=2, steps=200,
+    gain, rates = measure_turn_gain("snake_env/SnakeReach5-v1", offsets=(0.05, 0.1, 0.2), starts=2, steps=200,
                                     settle=50)
     assert gain > 0
     assert all(rate > 0 for rate in rates.values())  # a positive offset turns left
@@ -82,8 +82,8 @@ def test_batched_success_rate_equals_the_single_env_episode():
     episode equals goal seeking rolled out in the single env."""
     params, speed = gait_for_links(5)
     for seed in (0, 1, 3):
-        rate, steps = success_rate("snake_env/SnakeReach5-v0", {"gain": 0.3}, 1, seed)
-        env = gym.make("snake_env/SnakeReach5-v0")
+        rate, steps = success_rate("snake_env/SnakeReach5-v1", {"gain": 0.3}, 1, seed)
+        env = gym.make("snake_env/SnakeReach5-v1")
         obs, _ = env.reset(seed=seed)
         controller = GoalSeekingController(params, 5, 1.0, 0.04, gait_speed=float(speed), gain=0.3)
         for step in range(1, 401):
@@ -100,7 +100,7 @@ def test_search_writes_an_entry_that_baseline_settings_reads(tmp_path, monkeypat
     monkeypatch.setattr(baseline_search, "MAX_OFFSETS", (0.2,))
     monkeypatch.setattr(baseline_search, "HYSTERESES", (1.5,))
     output = tmp_path / "baselines.yaml"
-    assert main(["--env", "snake_env/SnakeReach8-v0", "--episodes", "16", "--validate-episodes", "16",
+    assert main(["--env", "snake_env/SnakeReach8-v1", "--episodes", "16", "--validate-episodes", "16",
                  "--top", "2", "--output", str(output)]) == 0
     settings = baseline_settings("reach", 8, output)
     assert settings["gain"] in (0.17, 0.5) and settings["max_offset"] == 0.2 and settings["turn_gain"] > 0
@@ -109,9 +109,9 @@ def test_search_writes_an_entry_that_baseline_settings_reads(tmp_path, monkeypat
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--env", "snake_env/Snake5-v1"], "reach task id"),
+    (["--env", "snake_env/Snake5-v2"], "reach task id"),
     (["--env", "snake_env/NoSuch-v0"], "unknown env id"),
-    (["--env", "snake_env/SnakeReach8-v0", "--episodes", "0"], "--episodes must be >= 1"),
+    (["--env", "snake_env/SnakeReach8-v1", "--episodes", "0"], "--episodes must be >= 1"),
 ])
 def test_cli_rejects_bad_input_with_exit_code_2(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:

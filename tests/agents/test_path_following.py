@@ -12,7 +12,7 @@ from snake_env.agents.path_following import (GoalSeekingController, LineOfSightC
 from snake_env.agents.search import load_params
 from snake_env.agents.serpenoid import SerpenoidController, SerpenoidParams
 
-GAIT, _ = load_params("snake_env/Snake5-v1")
+GAIT, _ = load_params("snake_env/Snake5-v2")
 
 
 def test_on_the_path_and_aligned_the_los_controller_is_the_plain_serpenoid_gait():
@@ -39,7 +39,7 @@ def test_los_steers_towards_the_path():
 def _mean_cross_track(controller_factory, path_type, seeds=(0, 1, 2), steps=500):
     errors = []
     for seed in seeds:
-        env = gym.make("snake_env/SnakePath5-v1", path_type=path_type)
+        env = gym.make("snake_env/SnakePath5-v2", path_type=path_type)
         obs, _ = env.reset(seed=seed)
         controller = controller_factory()
         for k in range(steps):
@@ -73,7 +73,7 @@ def test_los_follows_the_path_far_better_than_the_unsteered_gait(path_type):
 def test_steering_controller_turns_with_the_yaw_command():
     yaw = {}
     for rate in (-0.5, 0.5):
-        env = gym.make("snake_env/SnakeCommand5-v0", speed_range=(1.5, 1.5), yaw_rate_range=(rate, rate))
+        env = gym.make("snake_env/SnakeCommand5-v1", speed_range=(1.5, 1.5), yaw_rate_range=(rate, rate))
         obs, _ = env.reset(seed=0)
         controller = SteeringController(GAIT, 5, 1.0, 0.04, gait_speed=1.86)
         q0, _ = env.unwrapped.state
@@ -85,7 +85,7 @@ def test_steering_controller_turns_with_the_yaw_command():
 
 
 def test_mean_link_angle_from_the_observation_matches_the_state():
-    env = gym.make("snake_env/Snake5-v1")
+    env = gym.make("snake_env/Snake5-v2")
     obs, _ = env.reset(seed=3)
     for _ in range(30):
         obs, *_ = env.step(env.action_space.sample())
@@ -147,7 +147,7 @@ def test_goal_seeking_steers_towards_the_goal_head_first_and_tail_first():
 
 @pytest.mark.parametrize("direction", [0.0, math.pi])
 def test_goal_seeking_reaches_a_goal_ahead_and_one_behind_on_the_reach_task(direction):
-    env = gym.make("snake_env/SnakeReach5-v0")
+    env = gym.make("snake_env/SnakeReach5-v1")
     obs, _ = env.reset(seed=4)
     goal = np.array([math.cos(direction), math.sin(direction)])
     env.unwrapped.task_state["goal"][0] = goal

@@ -25,8 +25,8 @@ def _compare(a, b):
 def test_matches_dummy_vec_env_on_the_single_env_across_episode_ends():
     """Same seed, same actions: obs, rewards, dones, every info entry (including
     terminal_observation and TimeLimit.truncated) and reset_infos agree exactly."""
-    ours = SnakeSB3VecEnv("snake_env/Snake3-v1", num_envs=1, max_episode_steps=30)
-    ref = DummyVecEnv([lambda: gym.make("snake_env/Snake3-v1", max_episode_steps=30)])
+    ours = SnakeSB3VecEnv("snake_env/Snake3-v2", num_envs=1, max_episode_steps=30)
+    ref = DummyVecEnv([lambda: gym.make("snake_env/Snake3-v2", max_episode_steps=30)])
     ours.seed(5)
     ref.seed(5)
     np.testing.assert_array_equal(ours.reset(), ref.reset())
@@ -50,7 +50,7 @@ def test_matches_dummy_vec_env_on_the_single_env_across_episode_ends():
 
 
 def test_many_envs_terminal_observation_convention():
-    venv = SnakeSB3VecEnv("snake_env/Snake5-v1", num_envs=4, max_episode_steps=5)
+    venv = SnakeSB3VecEnv("snake_env/Snake5-v2", num_envs=4, max_episode_steps=5)
     assert isinstance(venv, VecEnv) and venv.num_envs == 4
     venv.seed(0)
     venv.reset()
@@ -69,7 +69,7 @@ def test_many_envs_terminal_observation_convention():
 
 
 def test_attribute_access_and_seeding():
-    venv = SnakeSB3VecEnv("snake_env/Snake3-v1", num_envs=3, ctrl_cost_weight=0.5)
+    venv = SnakeSB3VecEnv("snake_env/Snake3-v2", num_envs=3, ctrl_cost_weight=0.5)
     assert venv.get_attr("ctrl_cost_weight") == [0.5] * 3
     assert venv.get_attr("n_links", indices=[0, 2]) == [3, 3]
     venv.set_attr("ctrl_cost_weight", 0.25)
@@ -93,13 +93,13 @@ def test_construction_errors():
     with pytest.raises(ValueError, match="snake_env id"):
         SnakeSB3VecEnv(42)
     with pytest.raises(ValueError, match="action"):
-        venv = SnakeSB3VecEnv("snake_env/Snake3-v1", num_envs=2)
+        venv = SnakeSB3VecEnv("snake_env/Snake3-v2", num_envs=2)
         venv.reset()
         venv.step(np.full((2, 2), np.nan, np.float32))
 
 
 def test_rgb_array_images_tile():
-    venv = SnakeSB3VecEnv("snake_env/Snake3-v1", num_envs=2, render_mode="rgb_array", width=40, height=30)
+    venv = SnakeSB3VecEnv("snake_env/Snake3-v2", num_envs=2, render_mode="rgb_array", width=40, height=30)
     venv.reset()
     venv.step(np.zeros((2, 2), np.float32))
     images = venv.get_images()
@@ -108,7 +108,7 @@ def test_rgb_array_images_tile():
 
 
 def test_ppo_trains_through_sb3_wrappers(tmp_path):
-    venv = SnakeSB3VecEnv("snake_env/Snake5-v1", num_envs=4, max_episode_steps=50)
+    venv = SnakeSB3VecEnv("snake_env/Snake5-v2", num_envs=4, max_episode_steps=50)
     venv = VecNormalize(VecMonitor(VecCheckNan(venv, raise_exception=True)), gamma=0.99)
     model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu",
                 policy_kwargs=dict(net_arch=[16]))
@@ -119,7 +119,7 @@ def test_ppo_trains_through_sb3_wrappers(tmp_path):
     assert np.all(np.isfinite(venv.obs_rms.mean)) and venv.obs_rms.count > 512
     model.save(tmp_path / "ppo")
     venv.save(tmp_path / "vecnormalize.pkl")
-    eval_env = VecNormalize.load(tmp_path / "vecnormalize.pkl", SnakeSB3VecEnv("snake_env/Snake5-v1", num_envs=1))
+    eval_env = VecNormalize.load(tmp_path / "vecnormalize.pkl", SnakeSB3VecEnv("snake_env/Snake5-v2", num_envs=1))
     np.testing.assert_array_equal(eval_env.obs_rms.mean, venv.obs_rms.mean)
     obs = eval_env.reset()
     action, _ = PPO.load(tmp_path / "ppo", device="cpu").predict(obs, deterministic=True)

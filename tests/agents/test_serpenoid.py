@@ -12,7 +12,7 @@ import snake_env  # noqa: F401
 from snake_env.agents import search
 from snake_env.agents.serpenoid import SerpenoidController, SerpenoidParams, joint_slices, reference
 
-ENV = "snake_env/Snake3-v1"
+ENV = "snake_env/Snake3-v2"
 
 
 def test_reference_is_a_travelling_wave_and_its_rate_is_its_derivative():
@@ -33,7 +33,7 @@ def test_reference_is_a_travelling_wave_and_its_rate_is_its_derivative():
 
 def test_joint_slices_match_the_env_observation():
     for include_position in (False, True):
-        env = gym.make("snake_env/Snake5-v1", exclude_current_positions_from_observation=not include_position)
+        env = gym.make("snake_env/Snake5-v2", exclude_current_positions_from_observation=not include_position)
         obs, _ = env.reset(seed=3)
         for _ in range(5):
             obs, *_ = env.step(env.action_space.sample())
@@ -133,15 +133,15 @@ def test_search_returns_its_best_scored_gait(tmp_path):
     params, env_kwargs = search.load_params(ENV, path)
     assert params == result.params and env_kwargs == {}
     with pytest.raises(ValueError, match="no serpenoid gait for env"):
-        search.load_params("snake_env/Snake30-v1", path)
+        search.load_params("snake_env/Snake30-v2", path)
 
 
 def test_shipped_gaits_reproduce_their_recorded_speed():
     """configs/serpenoid.yaml: the stored gaits reproduce, from starts the
     search never saw, a mean forward speed close to the one it recorded."""
     gaits = search.load_gaits()
-    assert "snake_env/Snake3-v1" in gaits and "snake_env/Snake5-v1" in gaits
-    for env_id in ("snake_env/Snake3-v1", "snake_env/Snake5-v1"):
+    assert "snake_env/Snake3-v2" in gaits and "snake_env/Snake5-v2" in gaits
+    for env_id in ("snake_env/Snake3-v2", "snake_env/Snake5-v2"):
         params, env_kwargs = search.load_params(env_id)
         recorded = gaits[env_id]["search"]["mean_forward_velocity"]
         speed = search.rollout_speeds(env_id, env_kwargs, [params] * 8, 1000, seed=123).mean()

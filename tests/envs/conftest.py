@@ -11,7 +11,7 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
 import snake_env  # noqa: E402,F401  (registers the ids)
 
-ALL_IDS = ["snake_env/Snake-v1"] + [f"snake_env/Snake{n}-v1" for n in (3, 5, 8, 12, 20, 30)]
+ALL_IDS = ["snake_env/Snake-v2"] + [f"snake_env/Snake{n}-v2" for n in (3, 5, 8, 12, 20, 30)]
 
 
 @pytest.fixture

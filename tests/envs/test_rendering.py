@@ -12,7 +12,7 @@ from snake_env.envs.rendering import BACKGROUND, WHEEL, SnakeRenderer
 
 
 def _frame_after_steps(n=5, steps=40, **kwargs):
-    env = gym.make(f"snake_env/Snake{n}-v1", render_mode="rgb_array", **kwargs)
+    env = gym.make(f"snake_env/Snake{n}-v2", render_mode="rgb_array", **kwargs)
     env.reset(seed=0)
     t = np.arange(n - 1)
     for k in range(steps):
@@ -44,7 +44,7 @@ def test_frame_size_and_camera_follow():
 
 
 def test_render_without_mode_warns_and_returns_none():
-    env = gym.make("snake_env/Snake3-v1")
+    env = gym.make("snake_env/Snake3-v2")
     env.reset(seed=0)
     with pytest.warns(UserWarning, match="render_mode"):
         assert env.unwrapped.render() is None
@@ -62,7 +62,7 @@ def test_vector_env_renders_one_frame_per_sub_env():
 
 def test_human_mode_opens_a_window_headless():
     pytest.importorskip("pygame")
-    env = gym.make("snake_env/Snake3-v1", render_mode="human", width=64, height=64)
+    env = gym.make("snake_env/Snake3-v2", render_mode="human", width=64, height=64)
     env.reset(seed=0)
     env.step(env.action_space.sample())
     assert env.unwrapped._window is not None
@@ -72,6 +72,6 @@ def test_human_mode_opens_a_window_headless():
 
 def test_human_mode_without_pygame_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "pygame", None)  # import pygame -> ImportError
-    env = gym.make("snake_env/Snake3-v1", render_mode="human")
+    env = gym.make("snake_env/Snake3-v2", render_mode="human")
     with pytest.raises(ImportError, match=r"snake_env\[human\]"):
         env.reset(seed=0)

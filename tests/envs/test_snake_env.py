@@ -32,14 +32,14 @@ def test_gymnasium_and_sb3_checkers_pass(env_id):
 
 
 def test_make_without_prior_import():
-    code = ("import gymnasium as gym, sys; env = gym.make('snake_env:snake_env/Snake5-v1'); "
+    code = ("import gymnasium as gym, sys; env = gym.make('snake_env:snake_env/Snake5-v2'); "
             "obs, _ = env.reset(seed=0); print(obs.shape, type(env.unwrapped).__name__)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert out.stdout.split() == ["(12,)", "SnakeEnv"]
 
 
 def test_snake_v1_takes_n_links():
-    env = gym.make("snake_env/Snake-v1", n_links=7)
+    env = gym.make("snake_env/Snake-v2", n_links=7)
     assert env.action_space.shape == (6,)
     assert env.observation_space.shape == (16,)
 
@@ -55,9 +55,9 @@ def _rollout(env, seed, steps, action_seed=0):
 
 
 def test_same_seed_same_rollout_different_seed_differs():
-    env = gym.make("snake_env/Snake5-v1")
+    env = gym.make("snake_env/Snake5-v2")
     a = _rollout(env, 7, 200)
-    b = _rollout(gym.make("snake_env/Snake5-v1"), 7, 200)
+    b = _rollout(gym.make("snake_env/Snake5-v2"), 7, 200)
     c = _rollout(env, 8, 200)
     np.testing.assert_array_equal(a, b)
     assert not np.allclose(a, c)
@@ -179,7 +179,7 @@ def test_paper_model_switches_off_damping_and_limits():
 
 
 def test_pickle_mid_episode_continues_identically(rng):
-    env = gym.make("snake_env/Snake5-v1", render_mode="rgb_array")
+    env = gym.make("snake_env/Snake5-v2", render_mode="rgb_array")
     env.reset(seed=11)
     for _ in range(10):
         env.step(rng.uniform(-1, 1, 4))
@@ -211,14 +211,14 @@ def test_non_finite_state_ends_the_episode_without_nan():
 
 
 def test_time_limit_comes_from_the_registration():
-    env = gym.make("snake_env/Snake3-v1", max_episode_steps=5)
+    env = gym.make("snake_env/Snake3-v2", max_episode_steps=5)
     env.reset(seed=0)
     flags = [env.step(env.action_space.sample())[3] for _ in range(5)]
     assert flags == [False] * 4 + [True]
 
 
 def test_info_keys():
-    env = gym.make("snake_env/Snake5-v1")
+    env = gym.make("snake_env/Snake5-v2")
     _, reset_info = env.reset(seed=0)
     assert set(reset_info) == {"x_position", "y_position", "distance_from_origin", "kinetic_energy"}
     info = env.step(env.action_space.sample())[4]

@@ -2,6 +2,7 @@
 vector env == single envs, argument checks, GoalEnv compute_reward, registration."""
 
 import math
+import re
 import warnings
 
 import gymnasium as gym
@@ -17,12 +18,12 @@ from snake_env.tasks.base import squared_norm
 
 # (id, kwargs) of every new task variant, on small snakes to keep the tests fast
 CASES = [
-    ("snake_env/SnakeCommand5-v0", {}),
-    ("snake_env/SnakeReach5-v0", {}),
-    ("snake_env/SnakeReach3-v0", {"reward_type": "dense"}),
-    ("snake_env/SnakePath5-v1", {"path_type": "line"}),
-    ("snake_env/SnakePath3-v1", {"path_type": "circle"}),
-    ("snake_env/SnakePath5-v1", {"path_type": "sine"}),
+    ("snake_env/SnakeCommand5-v1", {}),
+    ("snake_env/SnakeReach5-v1", {}),
+    ("snake_env/SnakeReach3-v1", {"reward_type": "dense"}),
+    ("snake_env/SnakePath5-v2", {"path_type": "line"}),
+    ("snake_env/SnakePath3-v2", {"path_type": "circle"}),
+    ("snake_env/SnakePath5-v2", {"path_type": "sine"}),
 ]
 IDS = [f"{env_id.split('/')[1]}-{'-'.join(map(str, kw.values())) or 'default'}" for env_id, kw in CASES]
 
@@ -38,6 +39,16 @@ def test_gymnasium_and_sb3_checkers_pass(env_id, kwargs):
     env.close()
 
 
+@pytest.mark.parametrize("row", TASK_IDS, ids=[row[0] for row in TASK_IDS])
+def test_registered_version_is_the_newest_of_the_version_history_and_older_ones_are_refused(row):
+    prefix, task, version, _, _ = row
+    history = [int(v) for v in re.findall(r"^\s*\* v(\d+):", TASKS[task].__doc__, re.MULTILINE)]
+    assert history and history[0] == max(history) == version
+    if version > 0:  # gymnasium names the newest version in its error
+        with pytest.raises(gym.error.DeprecatedEnv, match=f"{prefix}5-v{version}"):
+            gym.make(f"snake_env/{prefix}5-v{version - 1}")
+
+
 def test_every_family_is_registered_for_every_n_with_its_task_settings():
     ids = registered_ids()
     for prefix, task, version, steps, goal in TASK_IDS:
@@ -49,7 +60,7 @@ def test_every_family_is_registered_for_every_n_with_its_task_settings():
             assert spec.max_episode_steps == steps
             assert spec.vector_entry_point == "snake_env.envs.vector:SnakeVectorEnv"
         assert ids[f"snake_env/{prefix}-v{version}"] == {"task": task}
-    env = gym.make("snake_env/SnakePath-v1", n_links=7)
+    env = gym.make("snake_env/SnakePath-v2", n_links=7)
     assert env.action_space.shape == (6,) and env.observation_space.shape == (20,)
 
 
@@ -131,17 +142,17 @@ def test_vector_env_of_one_reproduces_the_single_env_with_the_same_seed(env_id, 
 
 
 @pytest.mark.parametrize("env_id, kwargs, name", [
-    ("snake_env/SnakeReach5-v0", {"reward_type": "shaped"}, "reward_type"),
-    ("snake_env/SnakeReach5-v0", {"distance_threshold": -0.1}, "distance_threshold"),
-    ("snake_env/SnakeReach5-v0", {"goal_distance_range": (2.0, 1.0)}, "goal_distance_range"),
-    ("snake_env/SnakeReach5-v0", {"terminate_on_success": "yes"}, "terminate_on_success"),
-    ("snake_env/SnakePath5-v1", {"path_type": "spiral"}, "path_type"),
-    ("snake_env/SnakePath5-v1", {"radius": 0.0}, "radius"),
-    ("snake_env/SnakePath5-v1", {"forward_reward_weight": 1.0}, "forward_reward_weight"),
-    ("snake_env/SnakeCommand5-v0", {"speed_range": (0.1,)}, "speed_range"),
-    ("snake_env/SnakeCommand5-v0", {"command_period": float("nan")}, "command_period"),
-    ("snake_env/SnakeCommand5-v0", {"max_torque": -1.0}, "max_torque"),
-    ("snake_env/SnakeCommand5-v0", {"task": "dance"}, "task"),
+    ("snake_env/SnakeReach5-v1", {"reward_type": "shaped"}, "reward_type"),
+    ("snake_env/SnakeReach5-v1", {"distance_threshold": -0.1}, "distance_threshold"),
+    ("snake_env/SnakeReach5-v1", {"goal_distance_range": (2.0, 1.0)}, "goal_distance_range"),
+    ("snake_env/SnakeReach5-v1", {"terminate_on_success": "yes"}, "terminate_on_success"),
+    ("snake_env/SnakePath5-v2", {"path_type": "spiral"}, "path_type"),
+    ("snake_env/SnakePath5-v2", {"radius": 0.0}, "radius"),
+    ("snake_env/SnakePath5-v2", {"forward_reward_weight": 1.0}, "forward_reward_weight"),
+    ("snake_env/SnakeCommand5-v1", {"speed_range": (0.1,)}, "speed_range"),
+    ("snake_env/SnakeCommand5-v1", {"command_period": float("nan")}, "command_period"),
+    ("snake_env/SnakeCommand5-v1", {"max_torque": -1.0}, "max_torque"),
+    ("snake_env/SnakeCommand5-v1", {"task": "dance"}, "task"),
 ])
 def test_bad_kwargs_raise_one_line_errors_naming_the_argument(env_id, kwargs, name):
     for make in (lambda: gym.make(env_id, **kwargs),
@@ -153,7 +164,7 @@ def test_bad_kwargs_raise_one_line_errors_naming_the_argument(env_id, kwargs, na
 
 @pytest.mark.parametrize("reward_type", ["sparse", "dense"])
 def test_compute_reward_on_a_batch_equals_the_step_rewards(reward_type):
-    env = gym.make("snake_env/SnakeReach5-v0", reward_type=reward_type, distance_threshold=0.5,
+    env = gym.make("snake_env/SnakeReach5-v1", reward_type=reward_type, distance_threshold=0.5,
                    goal_distance_range=(0.3, 0.6))
     achieved, desired, rewards, infos = [], [], [], []
     rng = np.random.default_rng(0)
@@ -176,13 +187,13 @@ def test_compute_reward_on_a_batch_equals_the_step_rewards(reward_type):
         successes = np.array([i["is_success"] for i in infos])
         assert np.array_equal(successes, rewards == 0.0)
     # the vector env's compute_reward (the one SB3's HerReplayBuffer calls) agrees
-    vec = gym.make_vec("snake_env/SnakeReach5-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    vec = gym.make_vec("snake_env/SnakeReach5-v1", num_envs=2, vectorization_mode="vector_entry_point",
                        reward_type=reward_type, distance_threshold=0.5)
     assert np.array_equal(vec.unwrapped.compute_reward(np.array(achieved), np.array(desired), None), rewards)
 
 
 def test_reach_terminates_on_success_and_reports_it():
-    env = gym.make("snake_env/SnakeReach5-v0")
+    env = gym.make("snake_env/SnakeReach5-v1")
     obs, _ = env.reset(seed=0)
     goal = obs["desired_goal"]
     q, u = env.unwrapped.state
@@ -195,7 +206,7 @@ def test_reach_terminates_on_success_and_reports_it():
 
 
 def test_command_is_resampled_every_period_within_its_ranges():
-    env = gym.make("snake_env/SnakeCommand5-v0", command_period=1.0, speed_range=(0.2, 0.4),
+    env = gym.make("snake_env/SnakeCommand5-v1", command_period=1.0, speed_range=(0.2, 0.4),
                    yaw_rate_range=(-0.3, -0.1))
     obs, _ = env.reset(seed=0)
     commands = [obs[-4:-2].copy()]
@@ -211,7 +222,7 @@ def test_command_is_resampled_every_period_within_its_ranges():
 
 @pytest.mark.parametrize("path_type", ["line", "circle", "sine"])
 def test_cross_track_error_is_the_signed_distance_to_the_closest_path_point(path_type):
-    env = gym.make("snake_env/SnakePath5-v1", path_type=path_type, initial_offset=0.4)
+    env = gym.make("snake_env/SnakePath5-v2", path_type=path_type, initial_offset=0.4)
     task = env.unwrapped.task
     signs = set()
     rng = np.random.default_rng(0)
@@ -239,7 +250,7 @@ def test_cross_track_error_is_the_signed_distance_to_the_closest_path_point(path
 
 
 def test_path_progress_along_a_line_is_the_x_speed():
-    env = gym.make("snake_env/SnakePath5-v1", path_type="line")
+    env = gym.make("snake_env/SnakePath5-v2", path_type="line")
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     for _ in range(20):
@@ -273,7 +284,7 @@ def test_path_progress_is_bounded_by_the_cm_speed_even_at_a_circles_centre():
     """v1: the progress term is the CM velocity along the path tangent, so it never exceeds
     the CM's speed; v0's arc-length rate of the closest point did near the centre of a small
     circle (a policy circled there for 10 m/s of progress)."""
-    env = gym.make("snake_env/SnakePath5-v1", path_type="circle", radius=0.1, initial_offset=0.0,
+    env = gym.make("snake_env/SnakePath5-v2", path_type="circle", radius=0.1, initial_offset=0.0,
                    max_cross_track_error=5.0)
     env.reset(seed=0)
     env.action_space.seed(0)

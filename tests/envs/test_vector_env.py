@@ -13,7 +13,7 @@ from snake_env.envs.snake import STEP_INFO_KEYS
 
 
 def test_make_vec_builds_the_batched_env():
-    envs = gym.make_vec("snake_env/Snake8-v1", num_envs=3, vectorization_mode="vector_entry_point", ctrl_cost_weight=0.01)
+    envs = gym.make_vec("snake_env/Snake8-v2", num_envs=3, vectorization_mode="vector_entry_point", ctrl_cost_weight=0.01)
     assert isinstance(envs, SnakeVectorEnv)
     assert envs.num_envs == 3 and envs.n_links == 8 and envs.max_episode_steps == 1000
     assert envs.ctrl_cost_weight == 0.01
@@ -27,14 +27,14 @@ def test_make_vec_builds_the_batched_env():
 
 
 def test_default_vectorization_mode_is_the_vector_entry_point():
-    assert isinstance(gym.make_vec("snake_env/Snake3-v1", num_envs=2), SnakeVectorEnv)
+    assert isinstance(gym.make_vec("snake_env/Snake3-v2", num_envs=2), SnakeVectorEnv)
 
 
 @pytest.mark.parametrize("n", [3, 12])
 def test_num_envs_1_reproduces_the_single_env_through_autoresets(n):
     """Same seed, same actions: identical observations, rewards, flags and infos, bit for bit,
     across two time-limit ends (the single env is reset by hand, the vector env autoresets)."""
-    env_id = f"snake_env/Snake{n}-v1"
+    env_id = f"snake_env/Snake{n}-v2"
     single = gym.make(env_id, max_episode_steps=40)
     vec = gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", max_episode_steps=40)
     obs1, info1 = single.reset(seed=5)
@@ -189,8 +189,8 @@ def test_pickle_continues_identically(rng):
 
 def test_sync_vectorization_of_the_single_env_agrees():
     """Gymnasium's own SyncVectorEnv over SnakeEnv (num_envs=1, same seed) gives the same rollout."""
-    ours = gym.make_vec("snake_env/Snake5-v1", num_envs=1, vectorization_mode="vector_entry_point", max_episode_steps=20)
-    sync = gym.make_vec("snake_env/Snake5-v1", num_envs=1, vectorization_mode="sync", max_episode_steps=20)
+    ours = gym.make_vec("snake_env/Snake5-v2", num_envs=1, vectorization_mode="vector_entry_point", max_episode_steps=20)
+    sync = gym.make_vec("snake_env/Snake5-v2", num_envs=1, vectorization_mode="sync", max_episode_steps=20)
     np.testing.assert_array_equal(ours.reset(seed=9)[0], sync.reset(seed=9)[0])
     for a in np.random.default_rng(3).uniform(-1, 1, (45, 1, 4)).astype(np.float32):
         r1, r2 = ours.step(a), sync.step(a)

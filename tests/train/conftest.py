@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-ENV = "snake_env/Snake3-v1"
+ENV = "snake_env/Snake3-v2"
 # 50-step episodes, 2 envs, frequent checkpoints/evaluations, 8-unit networks
 COMMON = ["--n-envs", "2", "--set", "env_kwargs.max_episode_steps=50", "--set", "eval_freq=128",
           "--set", "checkpoint_freq=128", "--set", "n_eval_episodes=1", "--set", "policy_kwargs.net_arch=[8]",

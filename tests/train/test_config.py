@@ -7,14 +7,14 @@ import yaml
 
 from snake_env.train import config as cfg
 
-ENV = "snake_env/Snake3-v1"
+ENV = "snake_env/Snake3-v2"
 
 
 @pytest.fixture
 def yaml_file(tmp_path):
     path = tmp_path / "hp.yaml"
     path.write_text(
-        "snake_env/Snake3-v1:\n"
+        "snake_env/Snake3-v2:\n"
         "  n_timesteps: !!float 1e5\n"
         "  n_envs: 8\n"
         "  gamma: 0.99\n"
@@ -69,8 +69,8 @@ def test_unknown_key_lists_valid_keys(yaml_file):
 def test_unknown_algo_and_env_list_valid_ones(yaml_file):
     with pytest.raises(cfg.ConfigError, match=r"\['ppo', 'sac'\]"):
         cfg.build_config("a2c", ENV, yaml_file)
-    with pytest.raises(cfg.ConfigError, match="available env ids: \\['snake_env/Snake3-v1'\\]"):
-        cfg.build_config("ppo", "snake_env/Snake9-v1", yaml_file)
+    with pytest.raises(cfg.ConfigError, match="available env ids: \\['snake_env/Snake3-v2'\\]"):
+        cfg.build_config("ppo", "snake_env/Snake9-v2", yaml_file)
 
 
 @pytest.mark.parametrize("override, pattern", [
@@ -90,7 +90,7 @@ def test_bad_values_are_one_line_errors(yaml_file, override, pattern):
 
 def test_algo_and_env_cannot_come_from_the_yaml(tmp_path):
     path = tmp_path / "hp.yaml"
-    path.write_text("snake_env/Snake3-v1:\n  algo: sac\n")
+    path.write_text("snake_env/Snake3-v2:\n  algo: sac\n")
     with pytest.raises(cfg.ConfigError, match="algo cannot be set"):
         cfg.build_config("ppo", ENV, path)
 
@@ -111,7 +111,7 @@ def test_saved_config_round_trips(tmp_path, yaml_file):
 def test_shipped_configs_are_valid(algo):
     """Every entry of configs/<algo>.yaml merges and its keys are accepted by SB3."""
     data = yaml.safe_load(cfg.default_config_path(algo).read_text())
-    for env_id in ("snake_env/Snake3-v1", "snake_env/Snake5-v1", "snake_env/Snake8-v1"):
+    for env_id in ("snake_env/Snake3-v2", "snake_env/Snake5-v2", "snake_env/Snake8-v2"):
         assert env_id in data
     for env_id in data:
         config = cfg.build_config(algo, env_id)
@@ -129,10 +129,10 @@ def test_config_lookup_precedence(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert cfg.default_config_path("ppo") == shipped  # no ./configs here
     (tmp_path / "configs").mkdir()
-    (tmp_path / "configs" / "ppo.yaml").write_text("snake_env/Snake3-v1:\n  n_steps: 64\n  batch_size: 64\n")
+    (tmp_path / "configs" / "ppo.yaml").write_text("snake_env/Snake3-v2:\n  n_steps: 64\n  batch_size: 64\n")
     assert cfg.default_config_path("ppo") == tmp_path / "configs" / "ppo.yaml"
-    assert cfg.build_config("ppo", "snake_env/Snake3-v1")["n_steps"] == 64
+    assert cfg.build_config("ppo", "snake_env/Snake3-v2")["n_steps"] == 64
     assert cfg.default_config_path("sac") == cfg.shipped_config_path("sac.yaml")  # per file
-    with pytest.raises(cfg.ConfigError, match="no ppo hyperparameters for env 'snake_env/Snake5-v1'"):
-        cfg.build_config("ppo", "snake_env/Snake5-v1")
-    assert cfg.build_config("ppo", "snake_env/Snake5-v1", config_path=shipped)["n_envs"] == 32
+    with pytest.raises(cfg.ConfigError, match="no ppo hyperparameters for env 'snake_env/Snake5-v2'"):
+        cfg.build_config("ppo", "snake_env/Snake5-v2")
+    assert cfg.build_config("ppo", "snake_env/Snake5-v2", config_path=shipped)["n_envs"] == 32

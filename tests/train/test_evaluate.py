@@ -15,7 +15,7 @@ import pytest
 from snake_env.train.evaluate import main
 
 REPO = Path(__file__).resolve().parents[2]
-ENV = "snake_env/Snake3-v1"
+ENV = "snake_env/Snake3-v2"
 
 
 def evaluate_json(tmp_path, *argv) -> dict:
@@ -117,12 +117,12 @@ def bad_model_cases(ppo_run: Path, tmp_path: Path):
         ([str(tmp_path / "missing")], "no such run directory or model file"),
         ([str(garbage), "--env", ENV], "not an SB3 model file"),
         ([str(truncated), "--env", ENV], "not an SB3 model file"),
-        ([str(bare), "--env", "snake_env/Snake5-v1"], "expects observations of shape (8,), the env gives (12,)"),
-        ([str(ppo_run), "--env", "snake_env/Snake5-v1"], "was trained on snake_env/Snake3-v1"),
+        ([str(bare), "--env", "snake_env/Snake5-v2"], "expects observations of shape (8,), the env gives (12,)"),
+        ([str(ppo_run), "--env", "snake_env/Snake5-v2"], "was trained on snake_env/Snake3-v2"),
         ([str(no_stats)], "VecNormalize statistics are missing"),
         ([str(bad_stats)], "not readable VecNormalize statistics"),
         ([str(tmp_path)], "holds no model.zip"),
-        (["--baseline", "serpenoid", "--env", "snake_env/Snake30-v1", "--serpenoid-config", str(no_gaits)],
+        (["--baseline", "serpenoid", "--env", "snake_env/Snake30-v2", "--serpenoid-config", str(no_gaits)],
          "no serpenoid gait for env"),
         ([str(ppo_run), "--video", str(tmp_path / "v.avi")], "--video must end with one of"),
     ]

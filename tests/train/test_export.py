@@ -226,7 +226,7 @@ def test_snake_eval_onnx_errors(tmp_path):
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "not a readable ONNX model" in proc.stderr
 
 
-REACH = "snake_env/SnakeReach5-v0"
+REACH = "snake_env/SnakeReach5-v1"
 
 
 @pytest.mark.parametrize("algo, extra", [

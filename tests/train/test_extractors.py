@@ -10,7 +10,7 @@ from snake_env.train import config as cfg
 from snake_env.train.extractors import GoalFrameExtractor, goal_frame_kwargs
 from snake_env.wrappers import wrap_vector_env
 
-REACH = "snake_env/SnakeReach8-v0"
+REACH = "snake_env/SnakeReach8-v1"
 
 
 def test_goal_frame_extractor_equals_the_goal_frame_wrapper_also_for_relabelled_goals():
@@ -50,7 +50,7 @@ def test_goal_frame_is_chosen_by_name_in_policy_kwargs_and_bad_names_are_refused
     with pytest.raises(cfg.ConfigError, match=r"features_extractor_class must be one of \['goal_frame'\], "
                                               r"got 'goal_fram'"):
         cfg.torch_policy_kwargs(config)
-    forward = cfg.build_config("sac", "snake_env/Snake5-v1", overrides=[
+    forward = cfg.build_config("sac", "snake_env/Snake5-v2", overrides=[
         "policy_kwargs=dict(features_extractor_class='goal_frame')"])
     with pytest.raises(ValueError, match="goal_frame needs a goal task"):
         cfg.torch_policy_kwargs(forward)

@@ -10,7 +10,7 @@ import torch
 from snake_env.train import config as cfg
 from snake_env.train.callbacks import ResidualBurnIn
 
-ENV = "snake_env/Snake3-v1"
+ENV = "snake_env/Snake3-v2"
 BURN_IN = [{"snake_env.train.callbacks.ResidualBurnIn": {"burn_in_steps": 64, "log_std": -2.5}}]
 
 

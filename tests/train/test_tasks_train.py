@@ -26,7 +26,7 @@ TINY = ["--n-envs", "2", "--set", "env_kwargs.max_episode_steps=50", "--set", "e
 def test_sac_with_her_smoke_trains_on_reach_and_evaluates(tmp_path, capsys, wrapper):
     run_dir = tmp_path / "her"
     # HER samples only after a finished episode: 2 envs x 50 steps < learning_starts
-    assert train_main(["--algo", "sac", "--env", "snake_env/SnakeReach5-v0", "--total-timesteps", "300",
+    assert train_main(["--algo", "sac", "--env", "snake_env/SnakeReach5-v1", "--total-timesteps", "300",
                        "--run-dir", str(run_dir), "--set", "learning_starts=120", "--set", "buffer_size=2000",
                        "--set", "batch_size=32", *TINY, *wrapper]) == 0
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
@@ -46,7 +46,7 @@ def test_sac_with_her_smoke_trains_on_reach_and_evaluates(tmp_path, capsys, wrap
 
 def test_ppo_picks_multi_input_policy_for_the_dict_observation(tmp_path):
     run_dir = tmp_path / "ppo_reach"
-    assert train_main(["--algo", "ppo", "--env", "snake_env/SnakeReach5-v0", "--total-timesteps", "128",
+    assert train_main(["--algo", "ppo", "--env", "snake_env/SnakeReach5-v1", "--total-timesteps", "128",
                        "--run-dir", str(run_dir), "--set", "policy=MlpPolicy", "--set", "n_steps=32",
                        "--set", "batch_size=32", "--set", "n_epochs=1", *TINY]) == 0
     from stable_baselines3 import PPO
@@ -58,10 +58,10 @@ def test_ppo_picks_multi_input_policy_for_the_dict_observation(tmp_path):
 
 
 @pytest.mark.parametrize("env_id, baseline, keys", [
-    ("snake_env/SnakePath5-v1", "los", ("mean_cross_track_error", "mean_path_speed")),
-    ("snake_env/SnakeCommand5-v0", "steering", ("mean_speed_error", "mean_yaw_rate_error")),
-    ("snake_env/Snake5-v1", "serpenoid", ()),
-    ("snake_env/SnakeReach5-v0", "homing", ("success_rate", "mean_final_goal_distance")),
+    ("snake_env/SnakePath5-v2", "los", ("mean_cross_track_error", "mean_path_speed")),
+    ("snake_env/SnakeCommand5-v1", "steering", ("mean_speed_error", "mean_yaw_rate_error")),
+    ("snake_env/Snake5-v2", "serpenoid", ()),
+    ("snake_env/SnakeReach5-v1", "homing", ("success_rate", "mean_final_goal_distance")),
 ])
 def test_baselines_report_task_metrics_and_cost_of_transport(tmp_path, env_id, baseline, keys):
     out = tmp_path / "baseline.json"
@@ -77,7 +77,7 @@ def test_baselines_report_task_metrics_and_cost_of_transport(tmp_path, env_id, b
 
 def test_baseline_on_the_wrong_task_is_a_one_line_error(capsys):
     with pytest.raises(SystemExit) as exit_info:
-        eval_main(["--baseline", "los", "--env", "snake_env/SnakeCommand5-v0"])
+        eval_main(["--baseline", "los", "--env", "snake_env/SnakeCommand5-v1"])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip()
     assert "--baseline los drives the path task" in err and "steering" in err and "\n" not in err
@@ -101,7 +101,7 @@ def test_cost_of_transport_is_actuator_energy_over_weight_times_distance():
 def test_actuator_power_is_the_work_of_the_torques_over_the_joint_angle_changes():
     import gymnasium as gym
 
-    env = gym.make("snake_env/SnakeCommand5-v0")
+    env = gym.make("snake_env/SnakeCommand5-v1")
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     for _ in range(10):

@@ -37,7 +37,7 @@ def check_run_dir(run_dir: Path, algo: str, steps: int) -> None:
         assert (run_dir / "checkpoints" / f"vecnormalize_{steps_of}_steps.pkl").is_file()
     assert latest_checkpoint(run_dir / "checkpoints")[0] >= steps
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
-    assert config["algo"] == algo and config["env_id"] == "snake_env/Snake3-v1"
+    assert config["algo"] == algo and config["env_id"] == "snake_env/Snake3-v2"
     assert config["n_envs"] == 2 and config["env_kwargs"] == {"max_episode_steps": 50}
     assert not list(run_dir.rglob(".*.tmp*"))  # atomic writes leave no temp files
 
@@ -101,15 +101,15 @@ def test_sigint_saves_model_and_statistics(tmp_path):
 
 
 @pytest.mark.parametrize("argv, pattern", [
-    (["--algo", "a2c", "--env", "snake_env/Snake3-v1"], "algo must be one of ['ppo', 'sac']"),
-    (["--algo", "ppo", "--env", "snake_env/Snake3-v1", "--set", "gama=0.9"], "unknown config key(s) ['gama']"),
-    (["--algo", "ppo", "--env", "snake_env/Snake9-v1"], "available env ids"),
-    (["--algo", "ppo", "--env", "snake_env/Snake3-v1", "--set", "env_kwargs.max_torque=-1", "--total-timesteps", "64"],
+    (["--algo", "a2c", "--env", "snake_env/Snake3-v2"], "algo must be one of ['ppo', 'sac']"),
+    (["--algo", "ppo", "--env", "snake_env/Snake3-v2", "--set", "gama=0.9"], "unknown config key(s) ['gama']"),
+    (["--algo", "ppo", "--env", "snake_env/Snake9-v2"], "available env ids"),
+    (["--algo", "ppo", "--env", "snake_env/Snake3-v2", "--set", "env_kwargs.max_torque=-1", "--total-timesteps", "64"],
      "max_torque"),
-    (["--algo", "ppo", "--env", "snake_env/Snake3-v1", "--set", "n_steps=0", "--total-timesteps", "64"],
+    (["--algo", "ppo", "--env", "snake_env/Snake3-v2", "--set", "n_steps=0", "--total-timesteps", "64"],
      "invalid ppo hyperparameters"),
     (["--resume", "no/such/run"], "config.yaml not found"),
-    (["--env", "snake_env/Snake3-v1"], "--algo {ppo,sac} and --env ID are required"),
+    (["--env", "snake_env/Snake3-v2"], "--algo {ppo,sac} and --env ID are required"),
 ])
 def test_bad_input_is_a_one_line_error(tmp_path, capsys, argv, pattern):
     with pytest.raises(SystemExit) as info:
@@ -121,5 +121,5 @@ def test_bad_input_is_a_one_line_error(tmp_path, capsys, argv, pattern):
 
 def test_existing_run_dir_is_not_overwritten(ppo_run, capsys):
     with pytest.raises(SystemExit):
-        main(["--algo", "ppo", "--env", "snake_env/Snake3-v1", "--run-dir", str(ppo_run)])
+        main(["--algo", "ppo", "--env", "snake_env/Snake3-v2", "--run-dir", str(ppo_run)])
     assert "already holds a run; use --resume" in capsys.readouterr().err

@@ -22,7 +22,7 @@ from snake_env.train.tune_objective import TrialEvalCallback
 from stable_baselines3.common.callbacks import BaseCallback
 
 REPO = Path(__file__).resolve().parents[2]
-ENV = "snake_env/Snake3-v1"
+ENV = "snake_env/Snake3-v2"
 # seconds per trial: 50-step episodes, 2 envs, an 8-unit network, one evaluation episode
 TINY = ["--algo", "ppo", "--env", ENV, "--n-envs", "2", "--n-evaluations", "2",
         "--set", "env_kwargs.max_episode_steps=50", "--set", "n_eval_episodes=1",
@@ -34,7 +34,7 @@ def tune_args(out, steps=256, trials=2, *extra) -> list[str]:
     return [*TINY, "--n-timesteps", str(steps), "--n-trials", str(trials), "--out", str(out), *extra]
 
 
-def load(out, name="ppo-Snake3-v1", storage=None):
+def load(out, name="ppo-Snake3-v2", storage=None):
     return optuna.load_study(study_name=name, storage=storage or f"sqlite:///{Path(out).resolve() / 'study.db'}")
 
 
@@ -172,7 +172,7 @@ def existing_study(tmp_path):
     """An existing study (one finished trial) whose database file must stay untouched by bad commands."""
     out = tmp_path / "existing"
     out.mkdir()
-    study = optuna.create_study(study_name="ppo-Snake3-v1", storage=f"sqlite:///{out.resolve()}/study.db",
+    study = optuna.create_study(study_name="ppo-Snake3-v2", storage=f"sqlite:///{out.resolve()}/study.db",
                                 direction="maximize")
     study.set_user_attr("algo", "ppo")
     study.set_user_attr("env_id", ENV)
@@ -191,13 +191,13 @@ BAD = [
     (["--n-envs", "0"], "--n-envs must be a positive integer"),
     (["--n-trials", "many"], "argument --n-trials: invalid int value"),
     (["--timeout", "-1"], "--timeout must be a positive number"),
-    (["--env", "snake_env/Snake4-v1"], "--env 'snake_env/Snake4-v1' is not a registered env id; registered snake envs:"),
+    (["--env", "snake_env/Snake4-v2"], "--env 'snake_env/Snake4-v2' is not a registered env id; registered snake envs:"),
     (["--storage", "no url"], "--storage 'no url' is not an SQLAlchemy URL"),
     (["--storage", "postgresql+psycopg://snake@127.0.0.1:1/optuna"], "cannot connect"),
     (["--storage", "nosuchdb://x/y"], "no database driver"),
     (["--storage", "sqlite:////nonexistent-dir/study.db"], "directory /nonexistent-dir does not exist"),
     (["--set", "n_stepz=32"], "unknown config key(s) ['n_stepz']"),
-    (["--n-timesteps", "512"], "--n-timesteps 512 differs from the 256 that study 'ppo-Snake3-v1' was created with"),
+    (["--n-timesteps", "512"], "--n-timesteps 512 differs from the 256 that study 'ppo-Snake3-v2' was created with"),
 ]
 
 
@@ -238,7 +238,7 @@ def test_every_algo_sampler_and_pruner_runs_a_study(tmp_path, algo_args, sampler
             "--pruner", pruner, "--seed", "3"]
     assert tune.main(args) == 0
     algo = algo_args[1]
-    study = load(out, name=f"{algo}-Snake3-v1")
+    study = load(out, name=f"{algo}-Snake3-v2")
     assert len(study.trials) == 2 and all(t.state == TrialState.COMPLETE for t in study.trials)
     searched = set(study.trials[0].params)
     assert "learning_rate" in searched and "net_arch" not in searched  # --set keys are not searched
