@@ -5,8 +5,12 @@
     python -m snake_env.benchmarks.fuzz --from-json PART.json [PART.json ...] --markdown PATH
 
 ``--shard I/K`` runs every K-th setting (both paper_model cells of it) starting
-at the I-th (I = 0..K-1), so K processes or machines split the matrix; ``--from-json`` joins their JSON files
-into one report (rows in matrix order).
+at the I-th (I = 0..K-1), so K processes or machines split the matrix.
+``--resume OLD.json ... --seed S`` runs only the cells that have fewer than
+``--steps-per-cell`` env-steps in the old files, for the steps they lack, with a
+new seed. ``--from-json`` joins any such files into one report: the parts of a
+cell add their counts, and the residual median is read off their summed
+histograms (20 bins per decade).
 
 The matrix of issue 10: n in {2, 3, 5, 12, 30, 100}, max_torque in {0.1, 1, 10,
 100} N m, length in {0.02, 0.2, 1} m, mass in {0.05, 1, 20} kg (inertia m L^2 / 12),
@@ -53,6 +57,9 @@ MATRIX_KEYS = ("n_links", "max_torque", "length", "mass", "inertia", "paper_mode
 ENV_DT = 0.04  # s, the default env step
 MAX_FRAME_SKIP = 64
 RESIDUAL_ROUNDING = 1e-9
+# the residual histogram of a row: 20 bins per decade from 1e-20 to 1 (see residual_histogram)
+RESIDUAL_LOG10_MIN, RESIDUAL_BINS_PER_DECADE = -20, 20
+RESIDUAL_BINS = -RESIDUAL_LOG10_MIN * RESIDUAL_BINS_PER_DECADE
 # --quick and the CI test: cells where v0 leaked (strong torque, long snakes, light or short links)
 QUICK_CELLS = {(5, 100.0, 0.2, 1.0), (30, 10.0, 0.2, 1.0), (3, 1.0, 0.02, 1.0), (12, 0.1, 0.2, 0.05),
                (2, 10.0, 1.0, 20.0)}  # recomputing the residual from infos rounds differently than the kernel
@@ -158,12 +165,33 @@ def run_cell(kwargs: dict, num_envs: int = 256, steps: int = 100_000, seed: int 
     elapsed = time.perf_counter() - start
     env.close()
     res = np.concatenate(residuals) if residuals else np.zeros(0)
-    row.update(refused=False, sim_dt=env.sim_dt, frame_skip=env.frame_skip, env_steps=env_steps,
+    row.update(refused=False, seed=seed, sim_dt=env.sim_dt, frame_skip=env.frame_skip, env_steps=env_steps,
                sim_failures=failures, failure_reasons=reasons, leaked=leaks,
                residual_median=float(np.median(res)) if res.size else None,
                residual_max=float(np.max(res)) if res.size else None,
-               steps_per_s=env_steps / elapsed)
+               residual_histogram=residual_histogram(res),
+               seconds=elapsed, steps_per_s=env_steps / elapsed)
     return row
+
+
+def residual_histogram(residuals: np.ndarray) -> list[int]:
+    """Counts of residuals in RESIDUAL_BINS_PER_DECADE bins per decade from 10^RESIDUAL_LOG10_MIN
+    (bin 0 also holds everything below, 0 included) to 1 (the last bin everything above): runs of
+    one cell with different seeds add their histograms, and the joint median is read off them."""
+    with np.errstate(divide="ignore"):
+        index = np.floor((np.log10(residuals) - RESIDUAL_LOG10_MIN) * RESIDUAL_BINS_PER_DECADE)
+    index = np.clip(np.nan_to_num(index, nan=0.0, neginf=0.0), 0, RESIDUAL_BINS - 1).astype(np.int64)
+    return np.bincount(index, minlength=RESIDUAL_BINS).tolist()
+
+
+def histogram_median(counts) -> float | None:
+    """The median of a :func:`residual_histogram` (the geometric centre of its bin, so within a
+    factor 10^(0.5 / RESIDUAL_BINS_PER_DECADE) = 1.06 of the exact one)."""
+    counts = np.asarray(counts)
+    if counts.sum() == 0:
+        return None
+    k = int(np.searchsorted(np.cumsum(counts), counts.sum() / 2.0))
+    return 10.0 ** (RESIDUAL_LOG10_MIN + (k + 0.5) / RESIDUAL_BINS_PER_DECADE)
 
 
 def _fmt(x, spec=".2g"):
@@ -174,6 +202,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
     run = [r for r in rows if not r["refused"]]
     refused = [r for r in rows if r["refused"]]
     total_leaks = sum(r["leaked"] for r in run)
+    joined = sum(isinstance(r.get("seed"), list) for r in run)
     lines = [
         "# Reliability: fuzzing the batched env",
         "",
@@ -187,7 +216,11 @@ def markdown(rows: list[dict], meta: dict) -> str:
         f"10^6 env-steps, {sum(r['env_steps'] for r in run):,} env-steps in total.",
         f"- **Leaked values: {total_leaks}** in total (non-finite, energy residual above tolerance, fold or "
         "runaway rate on a step not flagged `sim_failure`).",
-        f"- Machine: {meta['machine']}; wall time {meta['wall_s']:.0f} s; {meta['load']}.",
+        f"- Machine: {meta['machine']}; "
+        + (f"wall time {meta['wall_s']:.0f} s" if meta.get("wall_s") else
+           f"{sum(r.get('seconds', 0.0) for r in run):.0f} s of cell time (summed over cells and parts)")
+        + f"; {meta['load']}."
+        + (f" {joined} cells ran in more than one part (seeds), whose counts are added." if joined else ""),
         "",
         "Columns: residual = |K1 - K0 - W| / (max(K0, K1) + floor) per accepted env step (the env's "
         "energy_tolerance is 1e-2); failures = steps ended with `info['sim_failure']`, by reason.",
@@ -232,6 +265,10 @@ def parse_args(argv):
     parser.add_argument("--from-json", metavar="PATH", nargs="+",
                         help="render the report from saved --json files (shards of one run, with --steps-per-cell, "
                              "--num-envs and --wall-s of that run) instead of running")
+    parser.add_argument("--resume", metavar="PATH", nargs="+",
+                        help="saved --json files of earlier runs: run only the cells below --steps-per-cell there, "
+                             "for the env-steps they lack, with this run's --seed (which must be new for them); "
+                             "join all files with --from-json")
     parser.add_argument("--wall-s", type=float, default=0.0, help="with --from-json: the saved run's wall time (s)")
     parser.add_argument("--markdown", metavar="PATH", help="write the report (docs/reliability.md)")
     args = parser.parse_args(argv)
@@ -249,10 +286,54 @@ def parse_args(argv):
     return args
 
 
-def _matrix_order(rows: list[dict]) -> list[dict]:
-    """Rows of one or more shards in the order of :func:`matrix`."""
-    order = {tuple(sorted(cell.items())): i for i, cell in enumerate(matrix())}
-    return sorted(rows, key=lambda r: order.get(tuple(sorted((k, r[k]) for k in r if k in MATRIX_KEYS)), len(order)))
+def cell_key(row: dict) -> tuple:
+    """The matrix cell (n, torque, length, mass, inertia, paper) of a row or a cell's kwargs."""
+    return tuple(row[k] for k in MATRIX_KEYS)
+
+
+def join_rows(rows: list[dict]) -> list[dict]:
+    """One row per cell, in the order of :func:`matrix`: the runs of a cell (shards, or parts added
+    by ``--resume`` with another seed) summed; the joint residual median is read off the summed
+    histograms. Raises ValueError when a cell was run twice with one seed (the same trajectories
+    would count twice) or a part has no histogram to join."""
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(cell_key(row), []).append(row)
+    joined = []
+    for key, part in groups.items():
+        if len(part) == 1 or part[0]["refused"]:
+            joined.append(part[0])
+            continue
+        seeds = [r.get("seed", 0) for r in part]
+        if len(set(seeds)) < len(seeds):
+            raise ValueError(f"cell {dict(zip(MATRIX_KEYS, key))} was run more than once with seed {seeds}: "
+                             "each part of a cell needs its own --seed")
+        if any("residual_histogram" not in r for r in part):
+            raise ValueError(f"cell {dict(zip(MATRIX_KEYS, key))}: a part has no residual_histogram "
+                             "(written before parts could be joined); rerun it")
+        row = dict(part[0])
+        reasons: dict[str, int] = {}
+        for r in part:
+            for name, count in r["failure_reasons"].items():
+                reasons[name] = reasons.get(name, 0) + count
+        maxima = [r["residual_max"] for r in part if r["residual_max"] is not None]
+        histogram = np.sum([r["residual_histogram"] for r in part], axis=0)
+        seconds = sum(r["seconds"] for r in part)
+        row.update(seed=seeds, failure_reasons=reasons, residual_max=max(maxima, default=None),
+                   residual_histogram=histogram.tolist(), residual_median=histogram_median(histogram),
+                   seconds=seconds, **{k: sum(r[k] for r in part) for k in ("env_steps", "sim_failures", "leaked")})
+        row["steps_per_s"] = row["env_steps"] / seconds
+        joined.append(row)
+    order = {cell_key(cell): i for i, cell in enumerate(matrix())}
+    return sorted(joined, key=lambda r: order.get(cell_key(r), len(order)))
+
+
+def _load_rows(paths) -> list[dict]:
+    rows = []
+    for path in paths:
+        with open(path) as f:
+            rows += json.load(f)
+    return rows
 
 
 def main(argv=None) -> int:
@@ -260,11 +341,11 @@ def main(argv=None) -> int:
 
     args = parse_args(sys.argv[1:] if argv is None else argv)
     if args.from_json:
-        rows = []
-        for path in args.from_json:
-            with open(path) as f:
-                rows += json.load(f)
-        rows = _matrix_order(rows)
+        try:
+            rows = join_rows(_load_rows(args.from_json))
+        except (OSError, ValueError) as exc:
+            print(f"error: --from-json: {exc}", file=sys.stderr)
+            return 2
         seconds = f" --seconds-per-cell {args.seconds_per_cell:g}" if args.seconds_per_cell else ""
         meta = {"command": f"python -m snake_env.benchmarks.fuzz --steps-per-cell {args.steps_per_cell} --num-envs "
                            f"{args.num_envs}{seconds} --json " + " ".join(args.from_json),
@@ -284,16 +365,34 @@ def main(argv=None) -> int:
     if args.quick:
         cells = [c for c in cells if (c["n_links"], c["max_torque"], c["length"], c["mass"]) in QUICK_CELLS]
         steps, num_envs = 64 * 20, 64
+    done = {}
+    if args.resume:
+        try:
+            done = {cell_key(r): r for r in join_rows(_load_rows(args.resume))}
+        except (OSError, ValueError) as exc:
+            print(f"error: --resume: {exc}", file=sys.stderr)
+            return 2
+        for key, row in done.items():
+            if not row["refused"] and args.seed in np.atleast_1d(row.get("seed", 0)) and row["env_steps"] < steps:
+                print(f"error: --seed {args.seed} already ran cell {dict(zip(MATRIX_KEYS, key))} in --resume; "
+                      "give the new part another --seed", file=sys.stderr)
+                return 2
     rows = []
     start = time.perf_counter()
     for i, kwargs in enumerate(cells):
-        row = run_cell(kwargs, num_envs=num_envs, steps=steps, seed=args.seed, max_seconds=args.seconds_per_cell)
+        before = done.get(cell_key(kwargs))
+        if before is not None and (before["refused"] or before["env_steps"] >= steps):
+            continue  # refused, or already has its env-steps
+        left = steps - (before["env_steps"] if before else 0)
+        row = run_cell(kwargs, num_envs=num_envs, steps=left, seed=args.seed, max_seconds=args.seconds_per_cell)
         rows.append(row)
         status = "refused" if row["refused"] else (f"{row['env_steps']} steps, {row['sim_failures']} failures, "
                                                    f"{row['leaked']} leaked, {row['steps_per_s']:.0f}/s")
         print(f"[{i + 1}/{len(cells)}] {kwargs}: {status}", flush=True)
         if args.json:  # rewritten after every cell, so a long run can be stopped and still reported
             write_text(args.json, json.dumps(rows, indent=1))
+    if args.json:  # also when no cell was left to run
+        write_text(args.json, json.dumps(rows, indent=1))
     meta = {"command": "python -m snake_env.benchmarks.fuzz " + " ".join(sys.argv[1:] if argv is None else argv),
             "steps_per_cell": steps, "num_envs": num_envs, "seconds_per_cell": args.seconds_per_cell, "wall_s": time.perf_counter() - start,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores",

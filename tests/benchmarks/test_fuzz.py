@@ -80,3 +80,43 @@ def test_fuzz_cli_rejects_a_bad_shard(capsys, shard):
         fuzz.main([f"--shard={shard}"])
     assert exc.value.code == 2
     assert "--shard must be I/K" in capsys.readouterr().err
+
+
+def test_resume_runs_only_the_short_cells_with_a_new_seed_and_the_parts_join(tmp_path, capsys):
+    only = "'n_links': 3, 'max_torque': 1.0, 'length': 1.0, 'mass': 1.0"  # paper_model off and on
+    first, second, md = tmp_path / "a.json", tmp_path / "b.json", tmp_path / "reliability.md"
+    assert fuzz.main(["--steps-per-cell", "64", "--num-envs", "16", "--only", only, "--json", str(first)]) == 0
+    rows = json.loads(first.read_text())
+    assert len(rows) == 2 and all(r["env_steps"] >= 64 for r in rows)
+    # a cell already at --steps-per-cell is skipped; the short ones run for what they lack
+    common = ["--num-envs", "16", "--only", only, "--resume", str(first), "--json", str(second)]
+    assert fuzz.main(["--steps-per-cell", "64", "--seed", "1"] + common) == 0
+    assert json.loads(second.read_text()) == []
+    assert fuzz.main(["--steps-per-cell", "160", "--seed", "0"] + common) == 2  # same trajectories again
+    assert "--seed 0 already ran cell" in capsys.readouterr().err
+    assert fuzz.main(["--steps-per-cell", "160", "--seed", "1"] + common) == 0
+    added = json.loads(second.read_text())
+    assert [r["seed"] for r in added] == [1, 1]
+    assert all(160 - a["env_steps"] <= r["env_steps"] for r, a in zip(added, rows))
+    joined = fuzz.join_rows(rows + added)
+    for j, a, b in zip(joined, rows, added):
+        assert j["seed"] == [0, 1] and j["env_steps"] == a["env_steps"] + b["env_steps"] >= 160
+        assert j["sim_failures"] == a["sim_failures"] + b["sim_failures"] and j["leaked"] == 0
+        assert j["residual_max"] == max(a["residual_max"], b["residual_max"])
+        assert sum(j["residual_histogram"]) == sum(a["residual_histogram"]) + sum(b["residual_histogram"])
+    assert fuzz.main(["--from-json", str(first), str(second), "--markdown", str(md)]) == 0
+    text = md.read_text()
+    assert "2 cells ran in more than one part" in text
+    assert f"| {joined[0]['env_steps']:,} |" in text
+    with pytest.raises(ValueError, match="each part of a cell needs its own --seed"):
+        fuzz.join_rows(rows + rows)
+    assert fuzz.main(["--from-json", str(first), str(first)]) == 2
+
+
+def test_the_histogram_median_is_within_its_bin_of_the_exact_median():
+    cell = next(c for c in fuzz.matrix() if (c["n_links"], c["max_torque"], c["length"], c["mass"], c["paper_model"])
+                == (5, 1.0, 0.2, 1.0, True))
+    row = fuzz.run_cell(cell, num_envs=16, steps=16 * 40, seed=0)
+    assert sum(row["residual_histogram"]) > 0
+    ratio = fuzz.histogram_median(row["residual_histogram"]) / row["residual_median"]
+    assert 10 ** (-1 / fuzz.RESIDUAL_BINS_PER_DECADE) <= ratio <= 10 ** (1 / fuzz.RESIDUAL_BINS_PER_DECADE)
