@@ -346,9 +346,8 @@ def main(argv=None) -> int:
         except (OSError, ValueError) as exc:
             print(f"error: --from-json: {exc}", file=sys.stderr)
             return 2
-        seconds = f" --seconds-per-cell {args.seconds_per_cell:g}" if args.seconds_per_cell else ""
-        meta = {"command": f"python -m snake_env.benchmarks.fuzz --steps-per-cell {args.steps_per_cell} --num-envs "
-                           f"{args.num_envs}{seconds} --json " + " ".join(args.from_json),
+        # the report's command: the runs that wrote the files are given by --note
+        meta = {"command": "python -m snake_env.benchmarks.fuzz " + " ".join(sys.argv[1:] if argv is None else argv),
                 "steps_per_cell": args.steps_per_cell, "num_envs": args.num_envs, "wall_s": args.wall_s,
                 "seconds_per_cell": args.seconds_per_cell,
                 "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load": "shared machine",
