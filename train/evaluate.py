@@ -2,7 +2,7 @@
 
 Examples::
 
-    snake-eval runs/Snake5-v1__ppo__s0__20260101-120000 --episodes 5 --json eval.json
+    snake-eval runs/Snake5-v2__ppo__s0__20260101-120000 --episodes 5 --json eval.json
     snake-eval runs/.../checkpoints/model_200000_steps.zip --plot cm.png --video snake.gif
     snake-eval --baseline serpenoid --env snake_env/Snake5-v2 --json serpenoid.json
     snake-eval --baseline los --env snake_env/SnakePath5-v2 --json los.json

@@ -4,7 +4,7 @@ Examples::
 
     snake-train --algo ppo --env snake_env/Snake5-v2
     snake-train --algo sac --env snake_env/Snake3-v2 --set learning_rate=1e-3 --total-timesteps 50000
-    snake-train --resume runs/Snake5-v1__ppo__s0__20260101-120000
+    snake-train --resume runs/Snake5-v2__ppo__s0__20260101-120000
 
 The run directory holds ``config.yaml`` (the one merged config), ``model.zip``
 and ``vecnormalize.pkl``, ``checkpoints/`` (each model with its statistics),
