@@ -263,8 +263,8 @@ def parse_args(argv):
                         help="a line for the report's Notes section (e.g. the machine's load); repeatable")
     parser.add_argument("--json", metavar="PATH", help="write the rows as JSON")
     parser.add_argument("--from-json", metavar="PATH", nargs="+",
-                        help="render the report from saved --json files (shards of one run, with --steps-per-cell, "
-                             "--num-envs and --wall-s of that run) instead of running")
+                        help="render the report from saved --json files instead of running: shards and resumed "
+                             "parts are joined per cell (give --steps-per-cell and --num-envs of the runs)")
     parser.add_argument("--resume", metavar="PATH", nargs="+",
                         help="saved --json files of earlier runs: run only the cells below --steps-per-cell there, "
                              "for the env-steps they lack, with this run's --seed (which must be new for them); "

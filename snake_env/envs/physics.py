@@ -49,7 +49,7 @@ estimate, work-energy balance, substep angle) and ends folded is a failure at
 once. Refinement buys accuracy, and this step is already accurate; the fold is
 the model's (no link contact), not the integrator's. Refining it cost up to 127
 substeps' work per failing snake and ran fold-heavy paper-model settings at a
-few hundred env-steps/s; the finer steps folded too (docs/reliability.md).
+few hundred env-steps/s; the finest step folds too (tests/envs/test_stability.py).
 A snake whose link angles exceed ``compiled.LANE_ANGLE_MAX`` (1e5 rad, only
 after thousands of turns) is stepped by the per-snake kernel
 (:func:`_step_one`, libm sin/cos) instead.
