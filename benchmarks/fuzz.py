@@ -336,6 +336,20 @@ def _load_rows(paths) -> list[dict]:
     return rows
 
 
+def _command(argv: list[str]) -> str:
+    """The command line of this run for the report, without its --note texts (the Notes section)."""
+    kept, skip = [], False
+    for arg in argv:
+        if skip or arg.startswith("--note="):
+            skip = False
+            continue
+        if arg == "--note":
+            skip = True
+            continue
+        kept.append(arg)
+    return "python -m snake_env.benchmarks.fuzz " + " ".join(kept)
+
+
 def main(argv=None) -> int:
     from snake_env.atomic import atomic_write_text as write_text
 
@@ -347,7 +361,7 @@ def main(argv=None) -> int:
             print(f"error: --from-json: {exc}", file=sys.stderr)
             return 2
         # the report's command: the runs that wrote the files are given by --note
-        meta = {"command": "python -m snake_env.benchmarks.fuzz " + " ".join(sys.argv[1:] if argv is None else argv),
+        meta = {"command": _command(sys.argv[1:] if argv is None else argv),
                 "steps_per_cell": args.steps_per_cell, "num_envs": args.num_envs, "wall_s": args.wall_s,
                 "seconds_per_cell": args.seconds_per_cell,
                 "machine": f"{platform.machine()}, {os.cpu_count()} cores", "load": "shared machine",
@@ -392,7 +406,7 @@ def main(argv=None) -> int:
             write_text(args.json, json.dumps(rows, indent=1))
     if args.json:  # also when no cell was left to run
         write_text(args.json, json.dumps(rows, indent=1))
-    meta = {"command": "python -m snake_env.benchmarks.fuzz " + " ".join(sys.argv[1:] if argv is None else argv),
+    meta = {"command": _command(sys.argv[1:] if argv is None else argv),
             "steps_per_cell": steps, "num_envs": num_envs, "seconds_per_cell": args.seconds_per_cell, "wall_s": time.perf_counter() - start,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores",
             "load": "load average at the end %.1f (shared machine)" % os.getloadavg()[0], "notes": args.note}
