@@ -391,6 +391,8 @@ def main(argv=None) -> int:
                       "give the new part another --seed", file=sys.stderr)
                 return 2
     rows = []
+    if args.json:  # an empty list until the first cell, also when no cell is left to run
+        write_text(args.json, "[]")
     start = time.perf_counter()
     for i, kwargs in enumerate(cells):
         before = done.get(cell_key(kwargs))
@@ -404,8 +406,6 @@ def main(argv=None) -> int:
         print(f"[{i + 1}/{len(cells)}] {kwargs}: {status}", flush=True)
         if args.json:  # rewritten after every cell, so a long run can be stopped and still reported
             write_text(args.json, json.dumps(rows, indent=1))
-    if args.json:  # also when no cell was left to run
-        write_text(args.json, json.dumps(rows, indent=1))
     meta = {"command": _command(sys.argv[1:] if argv is None else argv),
             "steps_per_cell": steps, "num_envs": num_envs, "seconds_per_cell": args.seconds_per_cell, "wall_s": time.perf_counter() - start,
             "machine": f"{platform.machine()}, {os.cpu_count()} cores",
