@@ -2,13 +2,17 @@
 
     python -m snake_env.benchmarks.fuzz [--steps-per-cell N] [--num-envs B] [--seconds-per-cell S] [--quick]
                               [--json PATH] [--markdown PATH] [--only TEXT] [--shard I/K]
+                              [--resume OLD.json ... --seed S] [--budget-s T]
     python -m snake_env.benchmarks.fuzz --from-json PART.json [PART.json ...] --markdown PATH
 
 ``--shard I/K`` runs every K-th setting (both paper_model cells of it) starting
 at the I-th (I = 0..K-1), so K processes or machines split the matrix.
 ``--resume OLD.json ... --seed S`` runs only the cells that have fewer than
 ``--steps-per-cell`` env-steps in the old files, for the steps they lack, with a
-new seed. ``--from-json`` joins any such files into one report: the parts of a
+new seed, cheapest first (by the seconds each lacks at its old env-steps/s), so
+``--budget-s T`` (no cell runs past T seconds of wall time; the last one stops
+where the budget ends and its row says how far it got) tops up as many cells as
+T allows. ``--from-json`` joins any such files into one report: the parts of a
 cell add their counts, and the residual median is read off their summed
 histograms (20 bins per decade).
 
@@ -254,6 +258,8 @@ def parse_args(argv):
     parser.add_argument("--num-envs", type=int, default=256, help="sub-envs of the vector env (default 256)")
     parser.add_argument("--seconds-per-cell", type=float, default=None, metavar="S",
                         help="stop a cell after S seconds of wall time (its row gives the env-steps it ran)")
+    parser.add_argument("--budget-s", type=float, default=None, metavar="T",
+                        help="the run's wall time (s): no cell runs past it (with --resume the cheapest run first)")
     parser.add_argument("--quick", action="store_true", help="a few cells, 64 envs x 20 steps: checks that it runs")
     parser.add_argument("--only", default="", help="run only cells whose kwargs text contains this (e.g. \"'n_links': 5,\")")
     parser.add_argument("--shard", default="0/1", metavar="I/K",
@@ -276,6 +282,8 @@ def parse_args(argv):
         parser.error(f"--steps-per-cell must be >= 1 and --num-envs >= 2, got {args.steps_per_cell}, {args.num_envs}")
     if args.seconds_per_cell is not None and not args.seconds_per_cell > 0:
         parser.error(f"--seconds-per-cell must be > 0, got {args.seconds_per_cell}")
+    if args.budget_s is not None and not args.budget_s > 0:
+        parser.error(f"--budget-s must be > 0, got {args.budget_s}")
     try:
         index, count = (int(part) for part in args.shard.split("/"))
         if not 0 <= index < count:
@@ -326,6 +334,14 @@ def join_rows(rows: list[dict]) -> list[dict]:
         joined.append(row)
     order = {cell_key(cell): i for i, cell in enumerate(matrix())}
     return sorted(joined, key=lambda r: order.get(cell_key(r), len(order)))
+
+
+def _seconds_lacking(row: dict | None, steps: int) -> float:
+    """Estimated wall time (s) a resumed cell needs to reach ``steps``, at its old env-steps/s
+    (inf when it has no rate yet: such cells run last)."""
+    if row is None or row["refused"] or not row.get("steps_per_s"):
+        return math.inf
+    return max(steps - row["env_steps"], 0) / row["steps_per_s"]
 
 
 def _load_rows(paths) -> list[dict]:
@@ -390,6 +406,7 @@ def main(argv=None) -> int:
                 print(f"error: --seed {args.seed} already ran cell {dict(zip(MATRIX_KEYS, key))} in --resume; "
                       "give the new part another --seed", file=sys.stderr)
                 return 2
+        cells.sort(key=lambda c: _seconds_lacking(done.get(cell_key(c)), steps))  # stable: ties keep matrix order
     rows = []
     if args.json:  # an empty list until the first cell, also when no cell is left to run
         write_text(args.json, "[]")
@@ -399,7 +416,14 @@ def main(argv=None) -> int:
         if before is not None and (before["refused"] or before["env_steps"] >= steps):
             continue  # refused, or already has its env-steps
         left = steps - (before["env_steps"] if before else 0)
-        row = run_cell(kwargs, num_envs=num_envs, steps=left, seed=args.seed, max_seconds=args.seconds_per_cell)
+        max_seconds = args.seconds_per_cell
+        if args.budget_s is not None:
+            budget_left = args.budget_s - (time.perf_counter() - start)
+            if budget_left <= 0.0:
+                print(f"--budget-s {args.budget_s:g} spent: the remaining cells did not run", flush=True)
+                break
+            max_seconds = budget_left if max_seconds is None else min(max_seconds, budget_left)
+        row = run_cell(kwargs, num_envs=num_envs, steps=left, seed=args.seed, max_seconds=max_seconds)
         rows.append(row)
         status = "refused" if row["refused"] else (f"{row['env_steps']} steps, {row['sim_failures']} failures, "
                                                    f"{row['leaked']} leaked, {row['steps_per_s']:.0f}/s")
