@@ -202,6 +202,34 @@ def _fmt(x, spec=".2g"):
     return "-" if x is None else format(x, spec)
 
 
+# bounds of the fold-time classes of the report, in env steps (ENV_DT)
+FOLD_TIME_BOUNDS = (0.3, 1.0, 3.0, 10.0, 30.0)
+
+
+def fold_time(row: dict) -> float:
+    """A lower bound on the time (s) the row's max_torque needs to turn a joint from rest to the
+    fold (FOLD_ANGLE): constant angular acceleration T / I_j with I_j = inertia / 2, the bound on
+    the effective joint inertia that ``config.stiffest_rates`` uses. With paper_model (no joint
+    limit) a torque held longer can fold the snake; Snake2 with inertia m L^2 / 12 folds after
+    2.25 times this (tests/benchmarks/test_fuzz.py)."""
+    from snake_env.envs import physics
+
+    return math.sqrt(2.0 * physics.FOLD_ANGLE * (row["inertia"] / 2.0) / row["max_torque"])
+
+
+def fold_time_table(rows: list[dict]) -> list[str]:
+    """The report's paper-model failure fractions by fold time in env steps (markdown lines)."""
+    paper = [r for r in rows if not r["refused"] and r["paper_model"] and r["env_steps"]]
+    edges = (0.0,) + FOLD_TIME_BOUNDS + (math.inf,)
+    lines = ["| fold time / env step | cells | failed steps: median | max |", "|---|---|---|---|"]
+    for low, high in zip(edges[:-1], edges[1:]):
+        fractions = [r["sim_failures"] / r["env_steps"] for r in paper if low <= fold_time(r) / ENV_DT < high]
+        if fractions:
+            label = f"< {high:g}" if low == 0.0 else (f">= {low:g}" if high == math.inf else f"{low:g} - {high:g}")
+            lines.append(f"| {label} | {len(fractions)} | {np.median(fractions):.1%} | {max(fractions):.1%} |")
+    return lines
+
+
 def markdown(rows: list[dict], meta: dict) -> str:
     run = [r for r in rows if not r["refused"]]
     refused = [r for r in rows if r["refused"]]
@@ -225,6 +253,18 @@ def markdown(rows: list[dict], meta: dict) -> str:
            f"{sum(r.get('seconds', 0.0) for r in run):.0f} s of cell time (summed over cells and parts)")
         + f"; {meta['load']}."
         + (f" {joined} cells ran in more than one part (seeds), whose counts are added." if joined else ""),
+        "",
+        "## Where the paper model folds",
+        "",
+        "Without joint limits (`paper_model=True`) a held torque folds adjacent links, which the model cannot "
+        "simulate (no link contact): such a step is a `sim_failure`. How often it happens depends on the fold "
+        "time sqrt(2 * 170 deg * (I / 2) / max_torque), a lower bound on the time the maximum torque needs to "
+        f"turn a joint from rest to the fold, here in env steps ({ENV_DT:g} s). With the default joint limits "
+        f"(no paper_model), {sum(r['sim_failures'] for r in run if not r['paper_model']):,} steps failed in all.",
+        "",
+        *fold_time_table(rows),
+        "",
+        "## Every setting",
         "",
         "Columns: residual = |K1 - K0 - W| / (max(K0, K1) + floor) per accepted env step (the env's "
         "energy_tolerance is 1e-2); failures = steps ended with `info['sim_failure']`, by reason.",
@@ -339,9 +379,9 @@ def join_rows(rows: list[dict]) -> list[dict]:
 def _seconds_lacking(row: dict | None, steps: int) -> float:
     """Estimated wall time (s) a resumed cell needs to reach ``steps``, at its old env-steps/s
     (inf when it has no rate yet: such cells run last)."""
-    if row is None or row["refused"] or not row.get("steps_per_s"):
+    if row is None or row["refused"] or not row["env_steps"]:
         return math.inf
-    return max(steps - row["env_steps"], 0) / row["steps_per_s"]
+    return max(steps - row["env_steps"], 0) * row["seconds"] / row["env_steps"]
 
 
 def _load_rows(paths) -> list[dict]:

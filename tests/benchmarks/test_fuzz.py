@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from snake_env.benchmarks import fuzz
@@ -156,3 +157,38 @@ def test_fuzz_cli_rejects_a_non_positive_budget(capsys):
         fuzz.main(["--budget-s", "-1"])
     assert exc.value.code == 2
     assert "--budget-s must be > 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("n_links, max_torque, length, mass", [(2, 10.0, 0.02, 0.05), (5, 1.0, 0.2, 1.0),
+                                                               (30, 0.1, 0.02, 0.05)])
+def test_the_fold_time_bounds_the_first_fold_from_rest(n_links, max_torque, length, mass):
+    """The report's fold time is a lower bound: the paper model at rest, driven by the maximum
+    torque with alternating signs, folds no sooner (resolved to 1/200 of the bound)."""
+    from snake_env.envs import physics
+    from snake_env.envs.config import PhysicsConfig
+
+    inertia = mass * length ** 2 / 12.0
+    bound = fuzz.fold_time({"inertia": inertia, "max_torque": max_torque})
+    _, params = PhysicsConfig(n_links=n_links, max_torque=max_torque, length=length, mass=mass, inertia=inertia,
+                              paper_model=True, sim_dt=bound / 200.0, frame_skip=1).build()
+    q, u, _, _ = physics.reset(params, np.zeros(n_links + 2))
+    torques = max_torque * (-1.0) ** np.arange(n_links - 1)
+    for step in range(1, 20 * 200):
+        q, u, _, aux = physics.step(params, q, u, torques)
+        if aux[physics.AUX_FAILED]:
+            break
+    assert aux[physics.AUX_FAILED] == physics.FAIL_FOLD
+    assert step * params.sim_dt >= bound
+    if n_links == 2:  # inertia m L^2 / 12: the effective joint inertia is 2.25^2 times the bound's I / 2
+        assert step * params.sim_dt == pytest.approx(2.25 * bound, rel=0.01)
+
+
+def test_the_report_classes_the_paper_cells_by_fold_time():
+    rows = [{"refused": False, "paper_model": paper, "inertia": inertia, "max_torque": 1.0, "env_steps": 100,
+             "sim_failures": failures} for paper, inertia, failures in
+            [(True, 1e-6, 90), (True, 2e-6, 50), (True, 1.0, 1), (False, 1e-6, 0)]]
+    classes = {fuzz.fold_time(r) / fuzz.ENV_DT < 0.3 for r in rows[:3]}
+    assert classes == {True, False}
+    table = fuzz.fold_time_table(rows)
+    assert "| < 0.3 | 2 | 70.0% | 90.0% |" in table
+    assert sum(line.split(" | ")[1] == "1" for line in table[2:]) == 1  # the slow-folding cell, alone in its class
