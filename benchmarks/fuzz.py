@@ -352,7 +352,8 @@ def join_rows(rows: list[dict]) -> list[dict]:
         if len(part) == 1 or part[0]["refused"]:
             joined.append(part[0])
             continue
-        seeds = [r.get("seed", 0) for r in part]
+        # a part may itself be joined (its seed a list): the parts of a report can be joined again
+        seeds = [int(seed) for r in part for seed in np.atleast_1d(r.get("seed", 0))]
         if len(set(seeds)) < len(seeds):
             raise ValueError(f"cell {dict(zip(MATRIX_KEYS, key))} was run more than once with seed {seeds}: "
                              "each part of a cell needs its own --seed")

@@ -105,6 +105,13 @@ def test_resume_runs_only_the_short_cells_with_a_new_seed_and_the_parts_join(tmp
         assert j["sim_failures"] == a["sim_failures"] + b["sim_failures"] and j["leaked"] == 0
         assert j["residual_max"] == max(a["residual_max"], b["residual_max"])
         assert sum(j["residual_histogram"]) == sum(a["residual_histogram"]) + sum(b["residual_histogram"])
+    # a joined report (seeds as lists) joins again with a later part, and still refuses a seed twice
+    later = [dict(b, seed=2) for b in added]
+    again = fuzz.join_rows(joined + later)
+    assert [r["seed"] for r in again] == [[0, 1, 2]] * 2
+    assert [r["env_steps"] for r in again] == [j["env_steps"] + b["env_steps"] for j, b in zip(joined, added)]
+    with pytest.raises(ValueError, match="each part of a cell needs its own --seed"):
+        fuzz.join_rows(joined + added)
     assert fuzz.main(["--from-json", str(first), str(second), "--markdown", str(md)]) == 0
     text = md.read_text()
     assert "2 cells ran in more than one part" in text
