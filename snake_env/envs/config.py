@@ -242,7 +242,9 @@ def stiffest_rates(params: PhysicsParams, max_torque: float) -> dict[str, float]
     """The setting's fastest linear rates (1/s) at rest, which a stable RK4 step must resolve.
 
     A joint's effective inertia is at least half the smaller central inertia of its two
-    links (the bound is reached by n = 2), I_j (kg m^2); against it act the joint and
+    links, I_j (kg m^2): a bound, approached only when the links' masses are small against
+    I / h^2 (Snake2 with inertia m L^2 / 12 turns like 2.25^2 I_j, tests/benchmarks/test_fuzz.py,
+    so the rates below err on the stiff side); against it act the joint and
     limit dampers (rate c / I_j), the limit spring (sqrt(k / I_j)) and the torque
     (sqrt(max_torque / (I_j * 1 rad)): the rate at which a joint from rest turns a
     radian); the wheel dampers act on the link masses (c / m).
