@@ -611,9 +611,14 @@ def rk4_lanes_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
 
 @njit(cache=True, nogil=True)
 def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, tol,
-                      v_ref):
+                      v_ref, stop_above_tol=False):
     """:func:`rk4_step` with the error estimate of :func:`rk4_lanes_estimate`;
-    returns (work of all loads (J), error estimate / tolerance)."""
+    returns (work of all loads (J), error estimate / tolerance).
+
+    ``stop_above_tol``: return as soon as the estimate exceeds the tolerance
+    (> 1), with (q, u) and the work those of the substep reached. For a caller
+    that discards a step over the tolerance anyway: the estimate is a running
+    maximum, so the full step would end above the tolerance too."""
     nq = q.shape[0]
     qs = np.empty(nq)
     kq = np.empty(nq)
@@ -673,6 +678,8 @@ def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, 
         e1 = abs(sixth * (k4u[1] - ku[1])) * inv_tol / (abs(u[1]) + 1.0)
         err = e0 if e0 > err else err
         err = e1 if e1 > err else err
+        if stop_above_tol and err > 1.0:
+            break
     return work, err
 
 

@@ -39,7 +39,9 @@ state it produced; a step passes when
     onto each other: no contact in the model, not physical).
 A snake whose step fails is integrated again from its pre-step state by the
 per-snake kernel with the substep halved, up to ``max_refinements`` times
-(only that snake: the others keep their lane result). If the finest step
+(only that snake: the others keep their lane result); an attempt below the
+finest level stops at its first substep over error_tolerance, since it is
+redone finer anyway (the accepted step is the same, bit for bit). If the finest step
 still fails, the step is a simulation failure: the pre-step state is kept
 (its observation is returned again, velocity and work 0) and aux[AUX_FAILED]
 holds the reason code (FAIL_*). The result of a snake still does not depend
@@ -286,8 +288,16 @@ def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
         u[1] = u0[1]
         sub = 1 << r
         dt_sub = sim_dt / sub
+        # below the finest level a step over the error tolerance is redone finer whatever the
+        # rest of it would give (the verdict is FAIL_NONFINITE or FAIL_ERROR, never a final
+        # FAIL_FOLD), so it stops at the first substep over the tolerance: the same accepted
+        # step, bit for bit, without integrating the rest of a rejected one. The finest level
+        # runs to the end, so that its verdict (non-finite or error) is that of the whole step.
         work, err = compiled.rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques,
-                                               dt_sub, frame_skip * sub, err_tol, h[0])
+                                               dt_sub, frame_skip * sub, err_tol, h[0], r < r_last)
+        if r < r_last and err > 1.0:
+            code = FAIL_ERROR
+            continue
         finite = math.isfinite(work) and math.isfinite(u[0]) and math.isfinite(u[1])
         for j in range(nq):
             finite = finite and math.isfinite(q[j])

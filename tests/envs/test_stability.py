@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from snake_env.benchmarks import fuzz
 from snake_env.dynamics import compiled
 from snake_env.envs import physics
 from snake_env.envs.physics import AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_WORK
@@ -243,3 +244,56 @@ def test_an_accurate_fold_fails_at_once_and_the_finest_substep_folds_too():
     assert len(refinements) > 100  # the undamped snake folds often under bang-bang torques
     assert np.mean(np.array(refinements) == 0) > 0.9  # decided by the first attempt (measured 1024 of 1026)
     assert np.all(np.array(finest_codes) == physics.FAIL_FOLD)  # measured: every one of 1026
+
+
+def _refined_step_by_whole_attempts(p, q0, u0, torques):
+    """The refinement of the module doc written out: levels r = 1..max_refinements, each one
+    whole attempt (no stop at the first substep over the error tolerance), judged by the
+    env's own check. Returns (code, r, q, u, work)."""
+    m, h = p.mass, p.half_length
+    k0, _, _ = physics._measures(m, h, p.inertia, q0, u0)
+    code = r = None
+    for r in range(1, p.max_refinements + 1):
+        q, u = q0.copy(), u0.copy()
+        sub = 2 ** r
+        work, err = compiled.rk4_step_estimate(m, h, p.inertia, p.joint_damping, p.wheel_damping, p.joint_limit,
+                                               p.limit_stiffness, p.limit_damping, q, u, torques, p.sim_dt / sub,
+                                               p.frame_skip * sub, p.error_tolerance, h[0], False)
+        finite = bool(np.isfinite(q).all() and np.isfinite(u).all() and math.isfinite(work))
+        k1, rate, fold = physics._measures(m, h, p.inertia, q, u) if finite else (math.nan,) * 3
+        code, _ = physics._verdict(finite and math.isfinite(k1), err, k0, k1, work, rate, fold, p.sim_dt / sub,
+                                   p.energy_tolerance, p.energy_floor)
+        if code == 0:
+            return code, r, q, u, work
+        if code == physics.FAIL_FOLD:
+            break
+    return code, r, q0, u0, 0.0
+
+
+@pytest.mark.parametrize("n_links", [5, 30])
+def test_refinement_stopping_a_rejected_attempt_early_accepts_the_same_step_bit_for_bit(n_links):
+    """A refinement attempt stops at its first substep over the error tolerance (it is redone
+    finer anyway); the accepted level, state and work equal those of whole attempts, bit for bit.
+    Paper model with short light links (0.02 m, 0.05 kg, 10 N m at the largest accepted sim_dt):
+    the settings of docs/reliability.md where most steps need 3 to 6 halvings."""
+    kwargs = dict(n_links=n_links, paper_model=True, max_torque=10.0, length=0.02, mass=0.05,
+                  inertia=0.05 * 0.02 ** 2 / 12.0)
+    env, note = fuzz.make_env(kwargs, num_envs=1)
+    assert "0.01 s refused" in note
+    p = env.params
+    rng = np.random.default_rng(1)
+    q, u, _, _ = physics.reset(p, rng.uniform(-0.1, 0.1, (32, n_links + 2)))
+    checked = stopped_early = 0
+    for a in _bang_bang(rng, (6, 32, n_links - 1), period=2):
+        torques = 10.0 * a
+        q1, u1, _, aux = physics.step(p, q, u, torques)
+        for b in np.flatnonzero(aux[:, AUX_REFINEMENTS] > 0):
+            code, r, qr, ur, work = _refined_step_by_whole_attempts(p, q[b], u[b], torques[b])
+            assert (aux[b, AUX_FAILED], aux[b, AUX_REFINEMENTS]) == (code, r)
+            np.testing.assert_array_equal(q1[b], qr)
+            np.testing.assert_array_equal(u1[b], ur)
+            assert aux[b, AUX_WORK] == work
+            checked += 1
+            stopped_early += r > 1
+        q, u = q1, u1
+    assert checked > 20 and stopped_early > 10  # the levels below the accepted one were rejected
