@@ -22,6 +22,11 @@ LIMIT_RAMP) makes the torque and its slope continuous where the limit starts
 to act: v0's damper switched on with a jump c phidot there, an error of
 first order in the step that RK4 and its error estimate do not resolve
 (measured: up to 0.2 rad/s in one env step against a fine reference).
+
+Editing this module: numba's on-disk cache (``cache=True``) is checked
+against the file of each cached function only, so kernels of other modules
+that call these (snake_env/envs/physics.py) keep the old code compiled in.
+Delete the caches after an edit: ``find snake_env -name '*.nb[ci]' -delete``.
 """
 
 from __future__ import annotations
