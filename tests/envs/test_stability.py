@@ -283,7 +283,7 @@ def test_refinement_stopping_a_rejected_attempt_early_accepts_the_same_step_bit_
     p = env.params
     rng = np.random.default_rng(1)
     q, u, _, _ = physics.reset(p, rng.uniform(-0.1, 0.1, (32, n_links + 2)))
-    checked = stopped_early = 0
+    checked = refined_past_first_level = 0
     for a in _bang_bang(rng, (6, 32, n_links - 1), period=2):
         torques = 10.0 * a
         q1, u1, _, aux = physics.step(p, q, u, torques)
@@ -294,6 +294,6 @@ def test_refinement_stopping_a_rejected_attempt_early_accepts_the_same_step_bit_
             np.testing.assert_array_equal(u1[b], ur)
             assert aux[b, AUX_WORK] == work
             checked += 1
-            stopped_early += r > 1
+            refined_past_first_level += r > 1
         q, u = q1, u1
-    assert checked > 20 and stopped_early > 10  # the levels below the accepted one were rejected
+    assert checked > 20 and refined_past_first_level > 10  # levels below the accepted one were rejected
