@@ -1,6 +1,6 @@
 """Settings of the reach task's goal-seeking baseline per number of links.
 
-Goal seeking (:class:`~snake_env.agents.path_following.GoalSeekingController`)
+Goal seeking (:class:`~snake_env.controllers.steering.GoalSeekingController`)
 was tuned by hand on Snake5; a longer snake turns less per rad of joint offset
 and reached 26 % / 17 % of the goals on n = 8 / 12 with Snake5's settings. Per n:
 
@@ -12,7 +12,8 @@ and reached 26 % / 17 % of the goals on n = 8 / 12 with Snake5's settings. Per n
    reset with ``--seed`` (one generator draws every sub-env's start and goal);
 3. the ``--top`` settings are re-scored on ``--validate-episodes`` other goals
    (the vector env reset with ``--validate-seed``) and the best of those is
-   written to ``configs/baselines.yaml`` under ``reach: {n: ...}`` (atomic write).
+   written to ``baselines.yaml`` (``./configs/baselines.yaml`` when it exists, else the
+   shipped file: :func:`snake_env.configfiles.config_path`) under ``reach: {n: ...}`` (atomic write).
 
 Neither goal set is ``snake-eval``'s (single-env episode seeds 0-99), so the
 evaluation there is on goals the search did not see.
@@ -30,10 +31,12 @@ import time
 import numpy as np
 import yaml
 
-from snake_env.agents.path_following import (BASELINE_SETTINGS, GoalSeekingController, SteeredSerpenoid,
-                                             load_baseline_settings, mean_link_angle)
-from snake_env.agents.search import DEFAULT_OUTPUT, env_geometry, gait_for_links
+from snake_env.agents.search import env_geometry
 from snake_env.atomic import atomic_write_text
+from snake_env.configfiles import config_path
+from snake_env.controllers.gaits import gait_for_links
+from snake_env.controllers.steering import (SETTINGS_FILE, GoalSeekingController, SteeredSerpenoid,
+                                            load_baseline_settings, mean_link_angle)
 
 GAINS = (0.12, 0.17, 0.25, 0.35, 0.5)  # rad of offset per rad of bearing
 MAX_OFFSETS = (0.1, 0.15, 0.2, 0.25, 0.3)  # rad
@@ -61,7 +64,7 @@ def _vector_env(env_id: str, num_envs: int, **kwargs):
 
 
 def measure_turn_gain(env_id: str, offsets=TURN_OFFSETS, starts: int = 3, steps: int = 375, settle: int = 100,
-                      seed: int = 0, gaits=DEFAULT_OUTPUT) -> tuple[float, dict]:
+                      seed: int = 0, gaits=None) -> tuple[float, dict]:
     """(G in rad/s per rad, {gamma: mean yaw rate (rad/s)}): the gait steered by each fixed ``offsets``
     value from ``starts`` random starts, the yaw rate of theta_bar measured after ``settle`` steps."""
     n_links, max_torque, dt, include_position = env_geometry(env_id, {})
@@ -84,7 +87,7 @@ def measure_turn_gain(env_id: str, offsets=TURN_OFFSETS, starts: int = 3, steps:
     return gain, {float(g): float(rates[gamma == g].mean()) for g in offsets}
 
 
-def success_rate(env_id: str, settings: dict, episodes: int, seed: int, gaits=DEFAULT_OUTPUT) -> tuple[float, float]:
+def success_rate(env_id: str, settings: dict, episodes: int, seed: int, gaits=None) -> tuple[float, float]:
     """(fraction of ``episodes`` goals reached, mean steps of the successes) by goal seeking with ``settings``;
     one episode per sub-env of a vector env reset with ``seed``."""
     n_links, max_torque, dt, include_position = env_geometry(env_id, {})
@@ -108,7 +111,7 @@ def success_rate(env_id: str, settings: dict, episodes: int, seed: int, gaits=DE
 
 
 def search(env_id: str, episodes: int = 200, seed: int = 1000, validate_episodes: int = 400,
-           validate_seed: int = 2000, top: int = 3, gaits=DEFAULT_OUTPUT, log=print) -> dict:
+           validate_seed: int = 2000, top: int = 3, gaits=None, log=print) -> dict:
     """The entry written to ``configs/baselines.yaml``: ``{"settings": ..., "search": ...}``."""
     _check_reach(env_id)
     start = time.perf_counter()
@@ -136,12 +139,14 @@ def search(env_id: str, episodes: int = 200, seed: int = 1000, validate_episodes
                        "settings_evaluated": len(scored), "seconds": round(time.perf_counter() - start, 1)}}
 
 
-def save_entry(task: str, n_links: int, entry: dict, path=BASELINE_SETTINGS) -> None:
-    """Merge ``entry`` into ``path`` under ``task: {n_links: ...}`` (atomic write)."""
+def save_entry(task: str, n_links: int, entry: dict, path=None) -> None:
+    """Merge ``entry`` into the settings file (``path``, else the one :func:`config_path` resolves) under
+    ``task: {n_links: ...}`` (atomic write)."""
+    path = config_path(SETTINGS_FILE, path)
     data = load_baseline_settings(path)
     data.setdefault(task, {})[int(n_links)] = entry
     data[task] = dict(sorted(data[task].items()))
-    header = ("# Settings of the task baselines (agents/path_following.py) per task and number of links, found by\n"
+    header = ("# Settings of the task baselines (snake_env/controllers/steering.py) per task and number of links, found by\n"
               "# `python -m snake_env.agents.baseline_search --env ID`; a task and n not listed use the\n"
               "# controllers' defaults, tuned by hand on Snake5. settings: the controller's keyword arguments\n"
               "# (gain, max_offset in rad; turn_gain in rad/s per rad; hysteresis in turning radii).\n")
@@ -157,7 +162,8 @@ def main(argv=None) -> int:
     parser.add_argument("--validate-episodes", type=int, default=400, help="goals of the finalists' re-scoring")
     parser.add_argument("--validate-seed", type=int, default=2000, help="vector-env seed of those goals")
     parser.add_argument("--top", type=int, default=3, help="finalists re-scored")
-    parser.add_argument("--output", default=str(BASELINE_SETTINGS), help="YAML to merge the result into")
+    parser.add_argument("--output", default=None, help="YAML to merge the result into (default: ./configs/"
+                        "baselines.yaml when it exists, else the shipped file)")
     parser.add_argument("--dry-run", action="store_true", help="print the result, do not write it")
     args = parser.parse_args(argv)
     for name in ("episodes", "validate_episodes", "top"):
@@ -175,7 +181,7 @@ def main(argv=None) -> int:
                                    f"{args.episodes} --seed {args.seed} --validate-episodes {args.validate_episodes} "
                                    f"--validate-seed {args.validate_seed} --top {args.top}`")
         save_entry("reach", n_links, entry, args.output)
-        print(f"saved to {args.output}")
+        print(f"saved to {config_path(SETTINGS_FILE, args.output)}")
     return 0
 
 

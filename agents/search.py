@@ -1,12 +1,13 @@
 """Search of serpenoid-gait parameters per env id (CMA-ES from the ``cma`` package).
 
-Both gait families of :mod:`snake_env.agents.serpenoid` are searched: uniform random
+Both gait families of :mod:`snake_env.controllers.serpenoid` are searched: uniform random
 samples in a box, then a few generations of CMA-ES (Hansen's ``cma``,
 bounded to the box by its ``BoundTransform``) started from the best random
 gait, in box-normalized coordinates. A whole population is one batched
 vector env (one gait per sub-env), so a generation is one rollout.
 Every gait is scored on a few random starts; the best few of each family
-are re-scored on many full-length episodes and the best mean is written to ``configs/serpenoid.yaml`` under the env id.
+are re-scored on many full-length episodes and the best mean is written to ``serpenoid.yaml`` under the env id
+(the file :func:`snake_env.configfiles.config_path` resolves: ``./configs/serpenoid.yaml`` when it exists).
 
 Score: mean forward speed of the snake's centre of mass, the mean of the
 env's ``info["x_velocity"]`` (m/s) over the episode, i.e. x displacement / time.
@@ -21,16 +22,16 @@ import math
 import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import yaml
 
 from snake_env.atomic import atomic_write_text
 
-from snake_env.agents.serpenoid import FAMILIES, SerpenoidController, SerpenoidParams
+from snake_env.configfiles import config_path
+from snake_env.controllers.gaits import GAITS_FILE, load_gaits
+from snake_env.controllers.serpenoid import FAMILIES, SerpenoidController, SerpenoidParams
 
-DEFAULT_OUTPUT = Path(__file__).resolve().parent.parent / "configs" / "serpenoid.yaml"
 
 # Search boxes: (name, low, high, log-scale). Frequencies up to 40 rad/s keep
 # >= 4 env steps (0.04 s each, the policy's control period too) per gait
@@ -53,21 +54,16 @@ class SearchResult:
 
 
 def env_geometry(env_id: str, env_kwargs: dict) -> tuple[int, float, float, bool]:
-    """(n_links, max_torque (N m), dt (s), include_position) of a snake env."""
-    import gymnasium as gym
+    """(n_links, max_torque (N m), dt (s), include_position) of a registered snake id, read from its
+    physics config (no env is built)."""
+    from snake_env.envs.core import env_config
+    from snake_env.tasks.base import controller_geometry
 
-    import snake_env  # noqa: F401
-
-    env = gym.make(env_id, **env_kwargs)
-    try:
-        base = env.unwrapped
-        return (int(base.n_links), float(base.max_torque), float(base.dt),
-                not bool(getattr(base, "exclude_current_positions_from_observation", True)))
-    finally:
-        env.close()
+    g = controller_geometry(env_config(env_id, env_kwargs)[1])
+    return g["n_links"], g["max_torque"], g["dt"], g["include_position"]
 
 
-# Work-energy check (DESIGN.md): K(t) - K(0) equals the work of all loads
+# Work-energy check (the paper's section VI.3): K(t) - K(0) equals the work of all loads
 # (info "power" x dt) for the continuous model; the fixed-step RK4 leaves a
 # residual of a few % of K over an episode (docs/results.md: -2.8 J at K ~ 80 J
 # under a trained Snake5 policy). A runaway integration breaks it by orders of
@@ -229,46 +225,10 @@ def final_scores(env_id: str, env_kwargs: dict, candidates, steps: int, episodes
     return speeds.reshape(episodes, len(candidates))
 
 
-def load_gaits(path=DEFAULT_OUTPUT) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        return {}
-    data = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(data, dict):
-        raise ValueError(f"{path} must hold a mapping keyed by env id")
-    return data
-
-
-def load_params(env_id: str, path=DEFAULT_OUTPUT) -> tuple[SerpenoidParams, dict]:
-    """(gait, env_kwargs it was searched with) for ``env_id`` from ``configs/serpenoid.yaml``."""
-    data = load_gaits(path)
-    if env_id not in data:
-        raise ValueError(f"no serpenoid gait for env {env_id!r} in {path}; available: {sorted(data)} "
-                         f"(run: python -m snake_env.agents.search --env {env_id})")
-    entry = data[env_id]
-    if not isinstance(entry, dict) or "params" not in entry:
-        raise ValueError(f"entry {env_id!r} of {path} must be a mapping with 'params'")
-    return SerpenoidParams.from_dict(entry["params"]), dict(entry.get("env_kwargs") or {})
-
-
-def gait_for_links(n_links: int, path=DEFAULT_OUTPUT) -> tuple[SerpenoidParams, float | None]:
-    """(gait, its straight-line speed (m/s) or None) of the locomotion id ``snake_env/Snake{n}-v*``
-    with this n (newest version) in ``path``: the gait the task baselines steer."""
-    import re
-
-    gaits = load_gaits(path)
-    pattern = re.compile(rf"^snake_env/Snake{n_links}-v(\d+)$")
-    matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
-    if not matches:
-        raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (run: python -m "
-                         f"snake_env.agents.search --env snake_env/Snake{n_links}-v2)")
-    entry = gaits[matches[-1][1]]
-    return SerpenoidParams.from_dict(entry["params"]), (entry.get("search") or {}).get("mean_forward_velocity")
-
-
-def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAULT_OUTPUT, note: str = "") -> None:
-    """Merge the result into the YAML under ``env_id`` (atomic write)."""
-    path = Path(path)
+def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=None, note: str = "") -> None:
+    """Merge the result into the gait file (``path``, else the one :func:`config_path` resolves) under
+    ``env_id`` (atomic write)."""
+    path = config_path(GAITS_FILE, path)
     data = load_gaits(path)
     data[env_id] = {
         "params": result.params.to_dict(),
@@ -277,8 +237,8 @@ def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=DEFAUL
                    "gaits_evaluated": result.evaluated, "seconds": round(result.seconds, 1),
                    **({"note": note} if note else {})},
     }
-    header = ("# Serpenoid gaits found by `python -m snake_env.agents.search --env ID` (see agents/search.py).\n"
-              "# params: snake_env.agents.serpenoid.SerpenoidParams; velocities in m/s (CM, along x).\n")
+    header = ("# Serpenoid gaits found by `python -m snake_env.agents.search --env ID` (see snake_env/agents/search.py).\n"
+              "# params: snake_env.controllers.serpenoid.SerpenoidParams; velocities in m/s (CM, along x).\n")
     text = header + yaml.safe_dump(dict(sorted(data.items())), sort_keys=False)
     atomic_write_text(path, text)
 
@@ -293,7 +253,8 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="random starts per gait during the search")
     parser.add_argument("--final-episodes", type=int, default=16, help="episodes of the finalists' re-scoring")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", default=str(DEFAULT_OUTPUT), help="YAML to merge the result into")
+    parser.add_argument("--output", default=None, help="YAML to merge the result into (default: ./configs/"
+                        "serpenoid.yaml when it exists, else the shipped file)")
     parser.add_argument("--dry-run", action="store_true", help="print the result, do not write it")
     args = parser.parse_args(argv)
     try:
@@ -312,7 +273,7 @@ def main(argv=None) -> int:
                 f"--search-steps {args.search_steps} --repeats {args.repeats} --final-episodes {args.final_episodes} "
                 f"--seed {args.seed}`")
         save_result(args.env_id, {}, result, args.output, note=note)
-        print(f"saved to {args.output}")
+        print(f"saved to {config_path(GAITS_FILE, args.output)}")
     return 0
 
 

@@ -84,7 +84,7 @@ def _round_down(x: float) -> float:
 
 def make_env(kwargs: dict, num_envs: int):
     """(vector env, sim_dt note) for a cell, or (None, refusal message)."""
-    from snake_env.envs.config import PhysicsConfig, max_stable_sim_dt
+    from snake_env.physics.config import PhysicsConfig, max_stable_sim_dt
     from snake_env.envs.vector import SnakeVectorEnv
 
     try:
@@ -110,7 +110,7 @@ def run_cell(kwargs: dict, num_envs: int = 256, steps: int = 100_000, seed: int 
     """Fuzz one setting through the vector env; returns the cell's row (see the module doc).
     ``max_seconds``: stop the cell early after this much wall time (the row says how many
     env-steps ran); cells whose every step fails run at a few hundred steps/s."""
-    from snake_env.envs import physics
+    from snake_env import physics
 
     env, note = make_env(kwargs, num_envs)
     row = {**kwargs, "note": note}
@@ -212,7 +212,7 @@ def fold_time(row: dict) -> float:
     the effective joint inertia that ``config.stiffest_rates`` uses. With paper_model (no joint
     limit) a torque held longer can fold the snake; Snake2 with inertia m L^2 / 12 folds after
     2.25 times this (tests/benchmarks/test_fuzz.py)."""
-    from snake_env.envs import physics
+    from snake_env import physics
 
     return math.sqrt(2.0 * physics.FOLD_ANGLE * (row["inertia"] / 2.0) / row["max_torque"])
 

@@ -24,8 +24,8 @@ def speeds(env_id: str, sigmas, envs: int, steps: int, seed: int, kp: float, kd:
     import gymnasium as gym
 
     import snake_env  # noqa: F401
-    from snake_env.agents.search import env_geometry, load_params
-    from snake_env.agents.serpenoid import SerpenoidController
+    from snake_env.agents.search import env_geometry
+    from snake_env.controllers import SerpenoidController, load_params
     from snake_env.wrappers import wrap_vector_env
 
     params, env_kwargs = load_params(env_id)

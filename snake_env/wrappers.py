@@ -32,10 +32,10 @@ arguments and the same per-step arithmetic:
   ``phi_i^ref = alpha sin(psi + (i-1) beta) + gamma`` with
   ``phidot_i^ref = alpha omega cos(psi + (i-1) beta)`` by the saturated PD, so
   a constant action is exactly the searched ``pd`` serpenoid of
-  :mod:`snake_env.agents.serpenoid` with those gains, and the policy modulates
+  :mod:`snake_env.controllers.serpenoid` with those gains, and the policy modulates
   it from state feedback; ``sin psi, cos psi`` are appended to the observation.
   The ranges default to the serpenoid search's ``pd`` box
-  (:data:`snake_env.agents.search.BOXES`), so the policy and the baseline
+  (``BOXES`` of ``python -m snake_env.agents.search``), so the policy and the baseline
   choose from the same gaits.
 
 * ``serpenoid_residual`` (:class:`SerpenoidResidualAction`): residual RL
@@ -88,6 +88,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorWrapper
 from gymnasium.vector.utils import batch_space
+
+from snake_env.controllers import StraightGait, gait_for_links
 
 def _number(name, value, unit, minimum=0.0, strict=False) -> float:
     ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
@@ -503,11 +505,6 @@ class CPGActionVector(VectorWrapper):
         return _with_phase(obs, self._phase), reward, terminated, truncated, info
 
 
-def _task_name(env) -> str:
-    """The env's task name ("forward", "path", "command", "reach")."""
-    return getattr(getattr(env.unwrapped, "task", None), "name", "forward")
-
-
 def _controller_geometry(env, num_envs: int) -> dict:
     """The keyword arguments a gait controller takes from the env (n_links, max_torque, dt, num_envs,
     include_position)."""
@@ -517,33 +514,12 @@ def _controller_geometry(env, num_envs: int) -> dict:
 
 
 def _task_baseline(env, gait, num_envs: int):
-    """The baseline controller of the residual wrappers: the task's baseline of
-    ``snake-eval --baseline`` (forward: the searched serpenoid of ``gait``, default this
-    env's id; path: line-of-sight guidance; command: the steered serpenoid; reach: goal seeking,
-    with the settings of ``configs/baselines.yaml`` for the env's n)."""
-    from snake_env.agents.path_following import TASK_BASELINES, make_baseline
-    from snake_env.agents.search import gait_for_links, load_params
-    from snake_env.agents.serpenoid import SerpenoidController
-
-    geometry = _controller_geometry(env, num_envs)
-    task = _task_name(env)
-    if task == "forward":
-        if gait is None:
-            spec = getattr(env, "spec", None) or getattr(env.unwrapped, "spec", None)
-            gait = getattr(spec, "id", None)
-            if gait is None:
-                raise ValueError("serpenoid_residual needs gait=<env id of a configs/serpenoid.yaml entry>")
-        return SerpenoidController(load_params(gait)[0], **geometry)
-    if task not in TASK_BASELINES:
-        raise ValueError(f"a residual wrapper needs a task with a baseline controller, one of "
-                         f"{['forward', *TASK_BASELINES]}; got task {task!r}")
-    if gait is not None:
-        raise ValueError(f"gait applies to the forward task; the {task} baseline steers the gait of "
-                         f"snake_env/Snake{geometry['n_links']}-v*, got gait={gait!r}")
-    params, speed = gait_for_links(geometry["n_links"])
-    if speed is None:
-        raise ValueError(f"the serpenoid gait for n_links={geometry['n_links']} has no search.mean_forward_velocity")
-    return make_baseline(task, params, speed, **geometry)
+    """The baseline controller of the residual wrappers: the task's own
+    (:meth:`snake_env.tasks.Task.make_baseline`, the one ``snake-eval --baseline`` runs)."""
+    base = env.unwrapped
+    if not hasattr(base, "task"):
+        raise ValueError(f"a residual wrapper needs a snake_env env with a task, got {base!r}")
+    return base.task.make_baseline(base.config, num_envs=num_envs, gait=gait)
 
 
 def _mode_size(controller, observe_mode) -> int:
@@ -581,9 +557,6 @@ STEERING_BASELINES = ("task", "gait")
 
 
 def _straight_gait(env, num_envs: int):
-    from snake_env.agents.path_following import StraightGait
-    from snake_env.agents.search import gait_for_links
-
     geometry = _controller_geometry(env, num_envs)
     return StraightGait(gait_for_links(geometry["n_links"])[0], **geometry)
 
@@ -603,11 +576,12 @@ class _SteeringResidual:
             raise ValueError(f"baseline must be one of {list(STEERING_BASELINES)}, got {baseline!r}")
         if baseline == "gait":
             self.controller = _straight_gait(env, num_envs)
-        elif _task_name(env) == "forward":
-            raise ValueError("steering_residual needs a task whose baseline steers the gait (path, command, "
-                             "reach) or baseline: gait; the forward task's serpenoid has no steering")
         else:
             self.controller = _task_baseline(env, None, num_envs)
+            if not hasattr(self.controller, "guidance"):
+                raise ValueError(f"steering_residual needs a task whose baseline steers the gait (path, command, "
+                                 f"reach) or baseline: gait; the {env.unwrapped.task.name} task's baseline "
+                                 f"{type(self.controller).__name__} has no steering")
         self.action_space = spaces.Box(-1.0, 1.0, (len(STEERING_ACTIONS),), np.float32)
 
     def env_action(self, obs, action) -> np.ndarray:
@@ -701,9 +675,9 @@ class SerpenoidResidualAction(_BaselineResidualAction):
 
     Args:
         scale: torque of a unit action, as a fraction of max_torque, in (0, 2]; default 0.3.
-        gait: forward task only: env id of the ``configs/serpenoid.yaml`` entry (default:
-            this env's id). The path, command and reach baselines steer the gait of
-            ``snake_env/Snake{n}-v*`` with this env's n.
+        gait: forward task only: env id of a ``serpenoid.yaml`` entry (default: the newest
+            ``snake_env/Snake{n}-v*`` of this env's n, a registered forward id's own). The path,
+            command and reach baselines steer that gait too.
         observe_mode: reach task only: also append the baseline's hidden mode (backing away
             0/1, direction of travel +-1, 0 before the first step), without which the
             baseline's next action is not a function of the observation; default false.

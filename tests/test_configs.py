@@ -9,7 +9,7 @@ import pytest
 from gymnasium.envs.registration import find_highest_version, registry
 
 import snake_env  # noqa: F401  (registers the ids)
-from snake_env.agents.search import load_gaits
+from snake_env.controllers.gaits import load_gaits
 from snake_env.train.config import build_config, read_yaml, default_config_path
 
 # locomotion names: "Snake" (n_links kwarg) and "Snake<n>"; task ids (SnakeReach<n>, ...) have their own configs

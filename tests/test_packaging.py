@@ -56,16 +56,16 @@ def test_wheel_top_level_is_only_snake_env(dists):
     assert [t for t in top if not t.endswith(".dist-info")] == ["snake_env"], top
     assert len(top) == 2 and top[1].startswith("snake_env-") and top[1].endswith(".dist-info")
     for inside in ("snake_env/configs/ppo.yaml", "snake_env/configs/sac.yaml", "snake_env/configs/serpenoid.yaml",
-                   "snake_env/agents/serpenoid.py", "snake_env/train/train.py", "snake_env/benchmarks/bench.py",
-                   "snake_env/envs/snake.py", "snake_env/dynamics/kane.py"):
+                   "snake_env/controllers/serpenoid.py", "snake_env/agents/search.py", "snake_env/train/train.py",
+                   "snake_env/benchmarks/bench.py", "snake_env/envs/snake.py", "snake_env/dynamics/kane.py"):
         assert inside in names, inside
     entry_points = zipfile.ZipFile(wheel).read(f"{top[1]}/entry_points.txt").decode()
     for script in ("snake-train", "snake-eval", "snake-export", "snake-bench", "snake-reproduce"):
         assert f"{script} = snake_env." in entry_points, script
     with tarfile.open(sdist) as archive:
         members = {Path(m).relative_to(Path(m).parts[0]).as_posix() for m in archive.getnames() if "/" in m}
-    assert {"pyproject.toml", "setup.py", "README.md", "configs/ppo.yaml", "agents/serpenoid.py",
-            "train/train.py"} <= members
+    assert {"pyproject.toml", "setup.py", "README.md", "configs/ppo.yaml", "agents/search.py",
+            "snake_env/controllers/serpenoid.py", "train/train.py"} <= members
 
 
 def test_wheel_in_fresh_venv_trains_and_evaluates_from_any_directory(dists, tmp_path):
@@ -99,6 +99,6 @@ def test_wheel_in_fresh_venv_trains_and_evaluates_from_any_directory(dists, tmp_
     assert "gae_lambda: 0.95" in (work / "run" / "config.yaml").read_text()  # the shipped ppo.yaml entry
     out = run([bin_dir / "snake-eval", "--baseline", "serpenoid", "--env", newest_id("Snake5"), "--episodes", "1",
                "--max-steps", "50", "--json", "serpenoid.json"], work, env)
-    assert "serpenoid gait" in out.stdout and (work / "serpenoid.json").is_file()
+    assert "serpenoid baseline (SerpenoidController" in out.stdout and (work / "serpenoid.json").is_file()
     out = run([bin_dir / "snake-eval", "run", "--episodes", "1"], work, env)
     assert "PPO" in out.stdout

@@ -12,8 +12,8 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 import snake_env  # noqa: F401
-from snake_env.agents.search import load_params
-from snake_env.agents.serpenoid import SerpenoidController
+from snake_env.controllers.gaits import load_params
+from snake_env.controllers.serpenoid import SerpenoidController
 from snake_env.wrappers import (CPGAction, CPGActionVector, GoalFrameObservation, GoalFrameObservationVector,
                                 JointTargetAction, JointTargetActionVector, PhaseObservation, PhaseObservationVector, SerpenoidResidualAction,
                                 SerpenoidResidualActionVector, SteeringResidualAction, SteeringResidualActionVector,
@@ -297,8 +297,8 @@ def test_serpenoid_residual_with_zero_action_is_the_searched_gait_and_a_correcti
                                                      ("snake_env/SnakeCommand5-v1", "SteeringController")])
 def test_serpenoid_residual_on_a_task_starts_at_the_tasks_baseline(env_id, controller_name):
     """Zero action = the baseline of snake-eval --baseline (line of sight, steering) step for step."""
-    from snake_env.agents import path_following
-    from snake_env.agents.search import gait_for_links
+    from snake_env.controllers import steering as path_following
+    from snake_env.controllers.gaits import gait_for_links
 
     params, speed = gait_for_links(5)
     baseline = getattr(path_following, controller_name)(params, 5, 1.0, 0.04, gait_speed=float(speed))
@@ -315,8 +315,8 @@ def test_serpenoid_residual_on_a_task_starts_at_the_tasks_baseline(env_id, contr
 
 
 def test_serpenoid_residual_on_the_reach_task_starts_at_goal_seeking_and_extends_the_dict_observation():
-    from snake_env.agents.path_following import GoalSeekingController
-    from snake_env.agents.search import gait_for_links
+    from snake_env.controllers.steering import GoalSeekingController
+    from snake_env.controllers.gaits import gait_for_links
 
     params, speed = gait_for_links(5)
     baseline = GoalSeekingController(params, 5, 1.0, 0.04, gait_speed=float(speed))
@@ -361,7 +361,7 @@ def test_observe_mode_appends_goal_seekings_hidden_state_and_makes_its_action_a_
     """With ``observe_mode`` the observation's last two entries are the baseline's mode, which its next action
     depends on (flipping it changes the action on some steps: it is state the plain observation lacks).
     The single env and a one-row vector env agree."""
-    from snake_env.agents.path_following import GoalSeekingController
+    from snake_env.controllers.steering import GoalSeekingController
 
     spec = {"serpenoid_residual": {"observe_mode": True}}
     single = wrap_env(gym.make("snake_env/SnakeReach12-v1"), spec)
@@ -412,8 +412,10 @@ def test_observe_mode_final_obs_keeps_the_episodes_last_mode():
 
 def test_serpenoid_residual_refuses_a_task_without_a_baseline(monkeypatch):
     env = gym.make("snake_env/Snake5-v2")
-    monkeypatch.setattr(env.unwrapped, "task", type("Dance", (), {"name": "dance"})())
-    with pytest.raises(ValueError, match="needs a task with a baseline controller.*got task 'dance'"):
+    from snake_env.tasks import Task
+
+    monkeypatch.setattr(env.unwrapped, "task", type("Dance", (Task,), {"name": "dance"})())
+    with pytest.raises(ValueError, match="the 'dance' task has no baseline controller"):
         SerpenoidResidualAction(env)
 
 
@@ -504,12 +506,13 @@ def test_train_config_refuses_goal_reading_wrappers_with_her():
                                              ("snake_env/SnakeReach12-v1", 12)])
 def test_steering_residual_with_zero_action_is_the_tasks_baseline(env_id, n_links):
     """Zero action = the baseline of snake-eval --baseline (with its configs/baselines.yaml settings) step for step."""
-    from snake_env.agents.path_following import make_baseline
-    from snake_env.agents.search import gait_for_links
+    from snake_env.controllers.steering import make_baseline
+    from snake_env.controllers.gaits import gait_for_links
 
     params, speed = gait_for_links(n_links)
     plain = gym.make(env_id)
-    baseline = make_baseline(plain.unwrapped.task.name, params, speed, n_links, 1.0, 0.04)
+    task = plain.unwrapped.task
+    baseline = make_baseline(task.baseline_controller, task.name, params, speed, n_links, 1.0, 0.04)
     residual = SteeringResidualAction(gym.make(env_id))
     assert residual.action_space == gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
     obs, _ = residual.reset(seed=3)
@@ -525,8 +528,8 @@ def test_steering_residual_with_zero_action_is_the_tasks_baseline(env_id, n_link
 def test_steering_residual_on_the_forward_task_starts_at_the_searched_serpenoid():
     """The forward task has no steering baseline, but baseline: gait does: its zero action sends the torques of
     the serpenoid of snake-eval --baseline serpenoid (configs/serpenoid.yaml, this id) step for step."""
-    from snake_env.agents.search import load_params
-    from snake_env.agents.serpenoid import SerpenoidController
+    from snake_env.controllers.gaits import load_params
+    from snake_env.controllers.serpenoid import SerpenoidController
 
     env_id = "snake_env/Snake20-v2"
     residual = SteeringResidualAction(gym.make(env_id), baseline="gait")
@@ -544,7 +547,7 @@ def test_steering_residual_on_the_forward_task_starts_at_the_searched_serpenoid(
         plain_obs, plain_reward, *_ = plain.step(action)
         np.testing.assert_allclose(sent["action"], action, atol=1e-7)
         assert reward == plain_reward
-    with pytest.raises(ValueError, match="forward task's serpenoid has no steering"):
+    with pytest.raises(ValueError, match="the forward task's baseline SerpenoidController has no steering"):
         SteeringResidualAction(gym.make(env_id))
 
 
@@ -568,7 +571,7 @@ def test_steering_residual_corrects_the_offset_and_the_gait_frequency():
 
     def run(action):
         """Mean link angles (rad) and CM speeds (m/s) of 150 steps under a constant action (1 m/s, no turn)."""
-        from snake_env.agents.path_following import mean_link_angle
+        from snake_env.controllers.steering import mean_link_angle
 
         env = SteeringResidualAction(gym.make(env_id, speed_range=(1.0, 1.0), yaw_rate_range=(0.0, 0.0)),
                                      offset_scale=0.1)
@@ -617,7 +620,7 @@ def test_steering_residual_on_reach_passes_the_env_checker_and_batches_its_dict_
 def test_steering_residual_on_the_straight_gait_reads_no_goal():
     """baseline: gait steers the searched serpenoid run straight: the zero action is that gait (offset 0, its
     frequency) whatever the goal, so HER may relabel goals; the gait moves the snake at its searched speed."""
-    from snake_env.agents.search import gait_for_links
+    from snake_env.controllers.gaits import gait_for_links
 
     env = SteeringResidualAction(gym.make("snake_env/SnakeReach5-v1"), baseline="gait", offset_scale=0.3)
     obs, _ = env.reset(seed=0)

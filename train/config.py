@@ -21,6 +21,7 @@ from pathlib import Path
 
 import yaml
 
+from snake_env.configfiles import config_path, shipped_config_path  # noqa: F401  (re-exported)
 from snake_env.train.atomic import atomic_write_text
 
 ALGOS = ("ppo", "sac")
@@ -88,27 +89,6 @@ def algo_arguments(algo: str) -> list[str]:
 
 def valid_keys(algo: str) -> list[str]:
     return sorted(set(META_DEFAULTS) | set(RUN_KEYS) | set(algo_arguments(algo)))
-
-
-SHIPPED_CONFIGS = "snake_env.configs"  # the package data that holds configs/*.yaml in an installed wheel
-
-
-def shipped_config_path(name: str) -> Path:
-    """A config file shipped with snake_env: the package data ``snake_env.configs`` read
-    with importlib.resources; in a source checkout that is not installed, ``<repo>/configs``."""
-    from importlib.resources import files
-
-    try:
-        return Path(str(files(SHIPPED_CONFIGS).joinpath(name)))
-    except ModuleNotFoundError:
-        return Path(__file__).resolve().parent.parent / "configs" / name
-
-
-def config_path(name: str) -> Path:
-    """``./configs/<name>`` of the working directory when it exists (a user's own configs
-    take precedence), else the shipped one. An explicit ``--config`` bypasses both."""
-    local = Path.cwd() / "configs" / name
-    return local if local.is_file() else shipped_config_path(name)
 
 
 def default_config_path(algo: str) -> Path:

@@ -33,8 +33,13 @@ import numpy as np
 
 EXIT_ERROR = 2
 VIDEO_SUFFIXES = (".gif", ".mp4")
-# baseline controller -> the task it drives
-BASELINES = {"serpenoid": "forward", "los": "path", "steering": "command", "homing": "reach"}
+
+
+def shipped_baselines() -> dict[str, str]:
+    """``--baseline`` name -> the shipped task it drives (each task class names its own baseline)."""
+    from snake_env.tasks import TASKS
+
+    return {cls.baseline_name: name for name, cls in TASKS.items() if cls.baseline_name}
 
 
 class EvalError(ValueError):
@@ -44,9 +49,9 @@ class EvalError(ValueError):
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="snake-eval", description="Evaluate a saved snake policy headlessly.")
     parser.add_argument("target", nargs="?", help="run directory or model .zip (omit with --baseline)")
-    parser.add_argument("--baseline", choices=list(BASELINES),
-                        help="evaluate a non-learned controller instead: " +
-                             "; ".join(f"{name} ({task} task)" for name, task in BASELINES.items()))
+    parser.add_argument("--baseline", metavar="NAME",
+                        help="evaluate the env's task baseline instead of a policy: " +
+                             "; ".join(f"{name} ({task} task)" for name, task in shipped_baselines().items()))
     parser.add_argument("--onnx", help="evaluate a policy exported by snake-export (onnxruntime only, no torch)")
     parser.add_argument("--env", dest="env_id", help="env id (required with --baseline; for a model it must match)")
     parser.add_argument("--episodes", type=int, default=5, help="number of episodes (default 5)")
@@ -67,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--env-kwarg", dest="env_kwargs", action="append", default=[], metavar="KEY=VALUE",
                         help="set an env kwarg (value read as YAML), e.g. path_type=circle; repeatable; "
                              "overrides the run's env_kwargs")
-    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline serpenoid (default ./configs/serpenoid.yaml if it "
+    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline, whose controllers run the searched gaits (default ./configs/serpenoid.yaml if it "
                              "exists, else the shipped one)")
     return parser
 
@@ -97,7 +102,7 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
     results, paths = [], []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
-        recorder = EpisodeRecorder(base.task.name, base.dt, base.task.weight(base.config), info)
+        recorder = EpisodeRecorder(base.task.episode_metrics, base.dt, base.task.weight(base.config), info)
         reset_controller()
         xy = [(info["x_position"], info["y_position"])]
         x0 = info["x_position"]
@@ -327,19 +332,6 @@ def policy_actor(args):
     return env_id, env_kwargs, act, lambda: None, title, meta
 
 
-def gait_for_task(env_id: str, path, env_kwargs: dict | None = None) -> tuple:
-    """(gait, its straight-line speed (m/s) or None, n_links, max_torque, dt, include_position) for a task id:
-    the searched gait of the locomotion id ``snake_env/Snake{n}-v*`` with the same n (newest version)."""
-    from snake_env.agents.search import env_geometry, gait_for_links
-
-    n_links, max_torque, dt, include_position = env_geometry(env_id, dict(env_kwargs or {}))
-    try:
-        params, speed = gait_for_links(n_links, path)
-    except ValueError as exc:
-        raise ValueError(f"{exc} (needed by the baseline on {env_id})") from None
-    return params, speed, n_links, max_torque, dt, include_position
-
-
 def onnx_actor(args):
     """(env_id, env_kwargs, act(obs), reset(), description, meta) of an exported ONNX policy."""
     from snake_env.agents.onnx_policy import OnnxPolicy, OnnxPolicyError
@@ -363,57 +355,31 @@ def onnx_actor(args):
     return policy.env_id, policy.env_kwargs, policy.act, lambda: None, title, meta
 
 
-def serpenoid_actor(args):
-    from snake_env.agents.search import env_geometry, load_params
-    from snake_env.agents.serpenoid import SerpenoidController
-    from snake_env.train.config import config_path
-
-    path = args.serpenoid_config or config_path("serpenoid.yaml")
-    task = _task_of(args.env_id)
-    if task != BASELINES[args.baseline]:
-        raise EvalError(f"--baseline {args.baseline} drives the {BASELINES[args.baseline]} task, {args.env_id} is a "
-                        f"{task} task; use --baseline "
-                        f"{next((b for b, t in BASELINES.items() if t == task), '(none for this task)')}")
-    if args.baseline != "serpenoid":
-        return steered_actor(args, path)
-    try:
-        params, env_kwargs = load_params(args.env_id, path)
-        n_links, max_torque, dt, include_position = env_geometry(args.env_id, env_kwargs)
-    except ValueError as exc:
-        raise EvalError(_first_line(exc)) from None
-    controller = SerpenoidController(params, n_links, max_torque, dt, include_position=include_position)
-    title = f"serpenoid gait {params} on {args.env_id}"
-    return (args.env_id, env_kwargs, controller.act, controller.reset, title,
-            {"algo": "serpenoid", "params": params.to_dict()})
-
-
-def _task_of(env_id: str) -> str:
-    import gymnasium as gym
-
-    import snake_env  # noqa: F401
-
-    try:
-        spec = gym.spec(env_id)
-    except gym.error.Error as exc:
-        raise EvalError(f"unknown env id {env_id!r}: {_first_line(exc)}") from None
-    return spec.kwargs.get("task", "forward")
-
-
-def steered_actor(args, path):
-    """Liljebäck's line-of-sight path following (``los``), the command-steered serpenoid (``steering``)
-    or goal seeking (``homing``)."""
-    from snake_env.agents.path_following import make_baseline
+def baseline_actor(args):
+    """(env_id, env_kwargs, act(obs), reset(), description, meta) of the env's task baseline
+    (:meth:`snake_env.tasks.Task.make_baseline`, the gait file ``--serpenoid-config`` or the one
+    :func:`snake_env.configfiles.config_path` resolves)."""
+    from snake_env.envs.core import env_config
 
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     try:
-        params, speed, n_links, max_torque, dt, include_position = gait_for_task(args.env_id, path, env_kwargs)
-        if speed is None:
-            raise ValueError(f"the gait for n_links={n_links} in {path} has no search.mean_forward_velocity")
-        controller = make_baseline(BASELINES[args.baseline], params, speed, n_links, max_torque, dt,
-                                   include_position=include_position)
+        task, config = env_config(args.env_id, env_kwargs)
     except ValueError as exc:
         raise EvalError(_first_line(exc)) from None
-    title = f"{args.baseline} baseline (steered serpenoid {params}) on {args.env_id}"
+    own = type(task).baseline_name
+    if args.baseline != own:
+        shipped = shipped_baselines()
+        if args.baseline not in shipped:
+            raise EvalError(f"--baseline must be one of {sorted({*shipped, *([own] if own else [])})}, "
+                            f"got {args.baseline!r}")
+        raise EvalError(f"--baseline {args.baseline} drives the {shipped[args.baseline]} task, {args.env_id} is a "
+                        f"{task.name} task; use --baseline {own or '(none for this task)'}")
+    try:
+        controller = task.make_baseline(config, gaits=args.serpenoid_config)
+    except ValueError as exc:
+        raise EvalError(_first_line(exc)) from None
+    params = controller.params
+    title = f"{args.baseline} baseline ({type(controller).__name__}, gait {params}) on {args.env_id}"
     return (args.env_id, env_kwargs, controller.act, controller.reset, title,
             {"algo": args.baseline, "params": params.to_dict()})
 
@@ -439,7 +405,7 @@ def compare_actor(args, env_id, env_kwargs):
     if args.compare == "serpenoid":
         other = argparse.Namespace(**{**vars(args), "baseline": "serpenoid", "target": None, "onnx": None,
                                       "env_id": env_id})
-        other_env_id, other_kwargs, act, reset, _, _ = serpenoid_actor(other)
+        other_env_id, other_kwargs, act, reset, _, _ = baseline_actor(other)
         label = "serpenoid"
     else:
         other = argparse.Namespace(**{**vars(args), "baseline": None, "target": args.compare, "onnx": None,
@@ -475,7 +441,7 @@ def record_video(args, env_id, env_kwargs, act, reset, algo, compare=None, env_w
 def evaluate(args) -> dict:
     check_outputs(args)
     if args.baseline:
-        env_id, env_kwargs, act, reset, title, meta = serpenoid_actor(args)
+        env_id, env_kwargs, act, reset, title, meta = baseline_actor(args)
     elif args.onnx:
         env_id, env_kwargs, act, reset, title, meta = onnx_actor(args)
     else:
@@ -489,13 +455,14 @@ def evaluate(args) -> dict:
     env = make_env(env_id, env_kwargs, render=False, env_wrapper=meta.get("env_wrapper"))
     try:
         results, paths = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps)
+        task = env.unwrapped.task
     finally:
         env.close()
     from snake_env.train.task_metrics import summarize_task
 
     summary = summarize(results)
-    task = _task_of(env_id)
-    task_summary = summarize_task(task, results)
+    task_summary = summarize_task(task.episode_metrics, results)
+    task = task.name
     print_table(title, results, summary)
     print_task_metrics(task, task_summary)
     report = {"env_id": env_id, "env_kwargs": env_kwargs, **meta, "deterministic": args.deterministic,

@@ -81,7 +81,7 @@ def speeds_from_csv(path, label: str, into=None) -> dict:
 def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=None, measured_csv=None) -> None:
     """speed_vs_n.png from the runs (and the measured CSV), the serpenoid of every SnakeN id and the
     earlier CSV."""
-    from snake_env.agents.search import load_gaits
+    from snake_env.controllers import load_gaits
     from snake_env.train.plots import plot_speed_vs_n
 
     serpenoid = {}

@@ -25,7 +25,7 @@ first order in the step that RK4 and its error estimate do not resolve
 
 Editing this module: numba's on-disk cache (``cache=True``) is checked
 against the file of each cached function only, so kernels of other modules
-that call these (snake_env/envs/physics.py) keep the old code compiled in.
+that call these (snake_env/physics/stepping.py) keep the old code compiled in.
 Delete the caches after an edit: ``find snake_env -name '*.nb[ci]' -delete``.
 """
 

@@ -3,7 +3,7 @@
 The single env is a batch of one and the vector env a batch of B; both hold a
 :class:`SnakeBatch` and only add the Gymnasium API around it (scalars and a
 TimeLimit wrapper for the one, autoreset and batched info for the other).
-The batched physics call is :func:`snake_env.envs.physics.step_inplace`, here
+The batched physics call is :func:`snake_env.physics.step_inplace`, here
 and nowhere else; a row's result does not depend on the batch it is in, so a
 vector env equals N single envs step by step.
 """
@@ -20,9 +20,10 @@ from numba import njit
 from snake_env.tasks import Task, task_class
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_reset_info, common_step_info
 
-from . import physics
-from .config import PhysicsConfig, number, split_kwargs
-from .physics import AUX_FAILED, AUX_X, AUX_Y
+from snake_env import physics
+from snake_env.physics import PhysicsConfig
+from snake_env.physics.settings import number, split_kwargs
+from snake_env.physics import AUX_FAILED
 
 
 def make_task_and_config(task, kwargs: dict) -> tuple[Task, PhysicsConfig]:
@@ -30,6 +31,20 @@ def make_task_and_config(task, kwargs: dict) -> tuple[Task, PhysicsConfig]:
     cls = task_class(task)
     physics_kwargs, task_kwargs = split_kwargs(kwargs, PhysicsConfig, cls)
     return cls(**task_kwargs), PhysicsConfig(**physics_kwargs)
+
+
+def env_config(env_id: str, env_kwargs: dict | None = None) -> tuple[Task, PhysicsConfig]:
+    """The task and physics config a registered id builds with ``env_kwargs``, without building the env
+    (an unknown id or argument is a one-line ValueError)."""
+    import gymnasium as gym
+
+    try:
+        spec = gym.spec(env_id)
+    except gym.error.Error as exc:
+        raise ValueError(f"unknown env id {env_id!r}: {str(exc).splitlines()[0]}") from None
+    kwargs = {**spec.kwargs, **dict(env_kwargs or {})}
+    kwargs.pop("render_mode", None)
+    return make_task_and_config(kwargs.pop("task", "forward"), kwargs)
 
 
 def observation_structure(n_links: int, include_position: bool) -> dict[str, int]:

@@ -1,7 +1,7 @@
 """``SnakeEnv``: one n-link wheeled snake doing a task, as a Gymnasium environment.
 
 The env is written once for every task: the physics settings are a
-:class:`~snake_env.envs.config.PhysicsConfig`, what differs between tasks is a
+:class:`~snake_env.physics.config.PhysicsConfig`, what differs between tasks is a
 :class:`~snake_env.tasks.Task` (``task="forward" | "command" | "reach" | "path"``),
 and the state is a :class:`~snake_env.envs.core.SnakeBatch` of one row, the
 same code the vector env runs for B rows. The spec of each registered id
@@ -22,7 +22,7 @@ from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, RESET_INFO_KEYS
 from snake_env.tasks.forward import ForwardTask
 
 from .core import TaskEnvBase, check_actions
-from .physics import AUX_X, AUX_Y
+from snake_env.physics import AUX_X, AUX_Y
 
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
 # the forward task's info keys (``env.step_info_keys`` gives any task's)
@@ -33,7 +33,7 @@ __all__ = ["SnakeEnv", "SnakeGoalEnv", "STEP_INFO_KEYS", "RESET_INFO_KEYS", "TRA
 class SnakeEnv(TaskEnvBase, gym.Env):
     """One snake doing one task; ``task`` names it (default "forward", the
     ``snake_env/Snake{n}-v2`` task), every other kwarg is a field of
-    :class:`~snake_env.envs.config.PhysicsConfig` or of the task class, whose
+    :class:`~snake_env.physics.config.PhysicsConfig` or of the task class, whose
     docstring is the spec. Unknown kwargs raise a one-line ``ValueError``.
     """
 

@@ -4,7 +4,7 @@ Created by ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")
 which passes ``num_envs``, the registration's ``max_episode_steps`` and the
 env kwargs. Every sub-env is the :class:`~snake_env.envs.snake.SnakeEnv` of
 the same kwargs; the state lives in (B, ...) arrays and the physics is one
-call of :func:`snake_env.envs.physics.step` (numba ``prange`` over the batch),
+call of :func:`snake_env.physics.step` (numba ``prange`` over the batch),
 so there is no Python loop over the sub-envs. With ``num_envs=1`` and the same
 seed it reproduces ``gym.make(id)`` step for step, bit for bit.
 
@@ -32,9 +32,9 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from .config import number
+from snake_env.physics.settings import number
 from .core import TaskEnvBase
-from .physics import AUX_X, AUX_Y
+from snake_env.physics import AUX_X, AUX_Y
 from .snake import RESET_INFO_KEYS, TRAIL_LENGTH
 
 AUTORESET_MODES = {mode.value: mode for mode in AutoresetMode}

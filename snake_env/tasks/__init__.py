@@ -1,7 +1,10 @@
 """Tasks on the one snake physics core (dm_control's Physics/Task split).
 
-A task is one :class:`Task` subclass and one row of the registration table
-(:mod:`snake_env.registration`). ``TASKS`` maps the ``task=`` name to its class.
+A task is one :class:`Task` subclass: its fields are its kwargs, its class
+attributes its registration (id prefix, version, episode length, GoalEnv),
+its eval metrics and its baseline controller. :data:`TASKS` lists the
+shipped ones; :func:`snake_env.registration.register_task` registers any
+other subclass, which is all a new task needs.
 """
 
 from __future__ import annotations

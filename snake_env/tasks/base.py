@@ -1,7 +1,7 @@
 """The ``Task`` half of dm_control's Physics/Task split.
 
 A task is a frozen dataclass whose fields are its kwargs (same names in YAML
-``env_kwargs``), validated through :func:`snake_env.envs.config.setting`
+``env_kwargs``), validated through :func:`snake_env.physics.settings.setting`
 metadata. It supplies only what differs between tasks, always for a batch of
 B snakes (the single env is a batch of one, so single and vector env share
 every line):
@@ -26,8 +26,10 @@ import numpy as np
 from gymnasium import spaces
 from numba import njit
 
-from snake_env.envs.config import GRAVITY, PhysicsConfig, check_fields, setting
-from snake_env.envs.physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_VY, AUX_WORK, AUX_X, AUX_Y
+from snake_env.controllers import gait_for_links, make_baseline
+from snake_env.physics import GRAVITY, PhysicsConfig
+from snake_env.physics.settings import check_fields, setting
+from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_VY, AUX_WORK, AUX_X, AUX_Y
 
 DEFAULT_RESET_NOISE_SCALE = 0.1  # rad for the angles, m/s and rad/s for the speeds
 DEFAULT_CTRL_COST_WEIGHT = 1e-4  # per (N m / max_torque)^2, like Swimmer-v5
@@ -36,6 +38,15 @@ DEFAULT_CTRL_COST_WEIGHT = 1e-4  # per (N m / max_torque)^2, like Swimmer-v5
 COMMON_STEP_INFO_KEYS = ("x_position", "y_position", "distance_from_origin", "x_velocity", "y_velocity",
                          "kinetic_energy", "power", "actuator_power", "sim_failure")
 RESET_INFO_KEYS = ("x_position", "y_position", "distance_from_origin", "kinetic_energy")
+# how an episode's values of an info key become one metric (Task.episode_metrics); the reducers are snake-eval's
+REDUCTIONS = ("any", "last", "mean", "mean_abs")
+
+
+def controller_geometry(config: PhysicsConfig) -> dict:
+    """What a controller reads of the physics: n_links, max_torque (N m), dt (s) and whether the
+    observation starts with the CM position."""
+    return dict(n_links=config.n_links, max_torque=config.max_torque, dt=config.dt,
+                include_position=not config.exclude_current_positions_from_observation)
 
 
 @dataclass(slots=True)
@@ -43,7 +54,7 @@ class StepContext:
     """What one batched physics step produced (rows = sub-envs).
 
     action: (B, n-1) clipped actions; torques (N m); q_prev, q: (B, n+2) before /
-    after; u: (B, 2); aux: (B, AUX_SIZE) of :mod:`snake_env.envs.physics`;
+    after; u: (B, 2); aux: (B, AUX_SIZE) of :mod:`snake_env.physics.stepping`;
     dt: env step (s).
     """
 
@@ -235,22 +246,64 @@ class Task:
     """Base of every task: the start-state noise and the hooks a task overrides.
 
     Subclasses are frozen dataclasses; their docstring is the env's spec
-    (Gymnasium style). Class attributes: ``name`` (the ``task=`` value),
-    ``max_episode_steps`` (of the registration), ``step_info_keys`` (info
-    keys beyond :data:`COMMON_STEP_INFO_KEYS`), ``goal_env`` (Dict observation
-    with ``compute_reward``).
+    (Gymnasium style). Every fact about a task lives on its class:
+
+    - ``name``: the ``task=`` value;
+    - registration: ids ``snake_env/<id_prefix>{n}-v<version>`` and
+      ``snake_env/<id_prefix>-v<version>`` (:func:`snake_env.registration.register_task`),
+      truncated after ``max_episode_steps``; ``goal_env``: a Dict observation with
+      ``compute_reward`` (Gymnasium's GoalEnv);
+    - ``step_info_keys``: info keys beyond :data:`COMMON_STEP_INFO_KEYS`;
+    - ``episode_metrics``: what ``snake-eval`` reports per episode beside the cost of
+      transport, ``{metric: (info key, reduction)}`` with a reduction of :data:`REDUCTIONS`;
+    - the baseline controller (``snake-eval --baseline <baseline_name>``, the residual
+      wrappers): :meth:`make_baseline`, by default ``baseline_controller`` (a
+      :class:`~snake_env.controllers.SteeredSerpenoid`) steering the searched gait of this n.
     """
 
     reset_noise_scale: float = setting(DEFAULT_RESET_NOISE_SCALE, "rad, m/s, rad/s", minimum=0.0, strict=False,
                                        doc="half-width of the uniform start noise")
 
     name: ClassVar[str] = ""
+    id_prefix: ClassVar[str] = ""
+    version: ClassVar[int] = 0
     max_episode_steps: ClassVar[int] = 1000
-    step_info_keys: ClassVar[tuple[str, ...]] = ()
     goal_env: ClassVar[bool] = False
+    step_info_keys: ClassVar[tuple[str, ...]] = ()
+    episode_metrics: ClassVar[dict[str, tuple[str, str]]] = {}
+    baseline_name: ClassVar[str | None] = None
+    baseline_controller: ClassVar[type | None] = None
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for metric, (key, reduction) in cls.episode_metrics.items():
+            if reduction not in REDUCTIONS:
+                raise TypeError(f"{cls.__name__}.episode_metrics[{metric!r}]: reduction must be one of "
+                                f"{list(REDUCTIONS)}, got {reduction!r}")
+            if key not in cls.step_info_keys:
+                raise TypeError(f"{cls.__name__}.episode_metrics[{metric!r}] reads info key {key!r}, which is not "
+                                f"in its step_info_keys {list(cls.step_info_keys)}")
 
     def __post_init__(self):
         check_fields(self)
+
+    @classmethod
+    def make_baseline(cls, config: PhysicsConfig, num_envs: int = 1, gait: str | None = None, gaits=None,
+                      settings=None):
+        """This task's baseline controller for ``num_envs`` snakes of ``config``: ``baseline_controller``
+        steering the searched gait of ``snake_env/Snake{n}-v*`` (newest version) in the gait file
+        ``gaits``, with the steering settings of ``settings`` for this n (both resolved by
+        :func:`snake_env.configfiles.config_path`). ``gait`` (an env id) is the forward task's."""
+        if cls.baseline_controller is None:
+            raise ValueError(f"the {cls.name!r} task has no baseline controller")
+        if gait is not None:
+            raise ValueError(f"gait applies to the forward task; the {cls.name} baseline steers the gait of "
+                             f"snake_env/Snake{config.n_links}-v*, got gait={gait!r}")
+        params, speed = gait_for_links(config.n_links, gaits)
+        if speed is None:
+            raise ValueError(f"the serpenoid gait for n_links={config.n_links} has no search.mean_forward_velocity")
+        return make_baseline(cls.baseline_controller, cls.name, params, speed, num_envs=num_envs,
+                             settings_path=settings, **controller_geometry(config))
 
     # ------------------------------------------------------------------ spaces
     def observation_space(self, config: PhysicsConfig, base: spaces.Box) -> spaces.Space:

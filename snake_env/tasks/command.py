@@ -7,8 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snake_env.envs.config import setting
-from snake_env.envs.physics import AUX_VX, AUX_VY
+from snake_env.controllers import SteeringController
+from snake_env.physics.settings import setting
+from snake_env.physics import AUX_VX, AUX_VY
 
 from .base import (DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, box_with_extras, link_centers, mean_heading,
                    squared_norm)
@@ -96,6 +97,10 @@ class CommandTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "command"
+    id_prefix, version = "SnakeCommand", 1
+    episode_metrics = {"mean_speed_error": ("speed_error", "mean_abs"),
+                       "mean_yaw_rate_error": ("yaw_rate_error", "mean_abs")}
+    baseline_name, baseline_controller = "steering", SteeringController
     step_info_keys = ("reward_speed", "reward_yaw", "reward_ctrl", "speed_error", "yaw_rate_error",
                       "speed_command", "yaw_rate_command")
 

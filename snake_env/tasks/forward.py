@@ -7,10 +7,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from snake_env.envs.config import setting
-from snake_env.envs.physics import AUX_VX
+from snake_env.controllers import SerpenoidController, gait_for_links, load_params
+from snake_env.physics.settings import setting
+from snake_env.physics import AUX_VX
 
-from .base import DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, squared_sum
+from .base import DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, controller_geometry, squared_sum
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ class ForwardTask(Task):
     (joint and limit damping against the smallest joint inertia, limit
     stiffness, torque, wheel damping) is beyond RK4's stability at `sim_dt`
     are refused with a ValueError that gives the largest accepted `sim_dt`
-    (`snake_env.envs.config.max_stable_sim_dt`). The physics (limits,
+    (`snake_env.physics.config.max_stable_sim_dt`). The physics (limits,
     integration, failures) is the same for every task.
 
     Link 1 is the link whose CM is (x, y) in eq. 1; link k+1 is attached to
@@ -185,7 +186,16 @@ class ForwardTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "forward"
+    id_prefix, version = "Snake", 2
     step_info_keys = ("reward_forward", "reward_ctrl")
+    baseline_name = "serpenoid"
+
+    @classmethod
+    def make_baseline(cls, config, num_envs=1, gait=None, gaits=None, settings=None):
+        """The searched serpenoid of ``gait`` (an env id of the gait file; default: the newest
+        ``snake_env/Snake{n}-v*`` of this n), run open loop in its own clock."""
+        params = load_params(gait, gaits)[0] if gait is not None else gait_for_links(config.n_links, gaits)[0]
+        return SerpenoidController(params, num_envs=num_envs, **controller_geometry(config))
 
     def evaluate(self, config, ctx: StepContext, state):
         terms = np.empty((3, ctx.aux.shape[0]))

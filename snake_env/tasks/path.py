@@ -7,8 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snake_env.envs.config import setting
-from snake_env.envs.physics import AUX_VX, AUX_VY
+from snake_env.controllers import LineOfSightController
+from snake_env.physics.settings import setting
+from snake_env.physics import AUX_VX, AUX_VY
 
 from .base import DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, box_with_extras, mean_heading, squared_norm
 
@@ -104,6 +105,10 @@ class PathTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "path"
+    id_prefix, version = "SnakePath", 2
+    episode_metrics = {"mean_cross_track_error": ("cross_track_error", "mean_abs"),
+                       "mean_path_speed": ("path_speed", "mean")}
+    baseline_name, baseline_controller = "los", LineOfSightController
     step_info_keys = ("reward_progress", "reward_cross_track", "reward_ctrl", "cross_track_error", "path_speed")
 
     def observation_space(self, config, base):
@@ -148,7 +153,7 @@ class PathTask(Task):
 
     # ------------------------------------------------------------------ task hooks
     def reset(self, config, state, rows, rng, q, aux):
-        from snake_env.envs.physics import AUX_X, AUX_Y
+        from snake_env.physics import AUX_X, AUX_Y
 
         sign = np.where(rng.uniform(size=rows.size) < 0.5, -1.0, 1.0)
         state["offset"][rows] = sign * self.initial_offset

@@ -8,7 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 
-from snake_env.envs.config import setting
+from snake_env.controllers import GoalSeekingController
+from snake_env.physics.settings import setting
 
 from .base import StepContext, Task, link_centers
 
@@ -81,9 +82,12 @@ class ReachTask(Task):
     terminate_on_success: bool = setting(True, "-", "bool", doc="end the episode on success")
 
     name = "reach"
+    id_prefix, version = "SnakeReach", 1
     max_episode_steps = 400
-    step_info_keys = ("reward_goal", "goal_distance", "is_success")
     goal_env = True
+    step_info_keys = ("reward_goal", "goal_distance", "is_success")
+    episode_metrics = {"success": ("is_success", "any"), "final_goal_distance": ("goal_distance", "last")}
+    baseline_name, baseline_controller = "homing", GoalSeekingController
 
     def observation_space(self, config, base):
         goal = spaces.Box(-np.inf, np.inf, (2,), np.float64)
@@ -99,7 +103,7 @@ class ReachTask(Task):
         state["goal"][rows] = np.stack([distance * np.cos(direction), distance * np.sin(direction)], axis=-1)
 
     def observe(self, config, obs, q, aux, state):
-        from snake_env.envs.physics import AUX_X, AUX_Y
+        from snake_env.physics import AUX_X, AUX_Y
 
         return {"observation": obs, "achieved_goal": aux[:, [AUX_X, AUX_Y]], "desired_goal": state["goal"]}
 

@@ -3,16 +3,17 @@
 import math
 
 import gymnasium as gym
-import numpy as np
 import pytest
 import yaml
 
 import snake_env  # noqa: F401
 from snake_env.agents import baseline_search
 from snake_env.agents.baseline_search import main, measure_turn_gain, success_rate
-from snake_env.agents.path_following import (GoalSeekingController, LineOfSightController, baseline_settings,
-                                             make_baseline)
-from snake_env.agents.search import gait_for_links
+from snake_env.controllers.gaits import gait_for_links
+from snake_env.controllers.steering import (GoalSeekingController, LineOfSightController, baseline_settings,
+                                            make_baseline)
+from snake_env.physics import PhysicsConfig
+from snake_env.tasks import TASKS, Task
 from snake_env.wrappers import SerpenoidResidualAction
 
 
@@ -24,25 +25,30 @@ def _write(tmp_path, data):
 
 def test_shipped_settings_exist_for_the_long_reach_snakes_and_snake5_keeps_the_defaults():
     for n in (8, 12):
-        settings = baseline_settings("reach", n)
+        settings = baseline_settings("reach", GoalSeekingController, n)
         assert set(settings) == {"gain", "max_offset", "hysteresis", "turn_gain"}
         assert all(math.isfinite(v) and v > 0 for v in settings.values())
-    assert baseline_settings("reach", 5) == {}
-    assert baseline_settings("path", 12) == {}
+    assert baseline_settings("reach", GoalSeekingController, 5) == {}
+    assert baseline_settings("path", LineOfSightController, 12) == {}
 
 
 def test_make_baseline_applies_the_settings_of_its_n(tmp_path):
     path = _write(tmp_path, {"reach": {8: {"settings": {"gain": 0.2, "max_offset": 0.25, "turn_gain": 4.0}}},
                              "path": {8: {"settings": {"lookahead": 2.0}}}})
     params, speed = gait_for_links(8)
-    reach = make_baseline("reach", params, speed, 8, 1.0, 0.04, settings_path=path)
+    reach = make_baseline(GoalSeekingController, "reach", params, speed, 8, 1.0, 0.04, settings_path=path)
     assert isinstance(reach, GoalSeekingController)
     assert (reach.gain, reach.max_offset, reach.turn_gain) == (0.2, 0.25, 4.0)
     assert reach.turn_radius == pytest.approx(speed / (4.0 * 0.25))
-    los = make_baseline("path", params, speed, 8, 1.0, 0.04, settings_path=path)
+    los = make_baseline(LineOfSightController, "path", params, speed, 8, 1.0, 0.04, settings_path=path)
     assert isinstance(los, LineOfSightController) and los.lookahead == 2.0
-    default = make_baseline("reach", params, speed, 12, 1.0, 0.04, settings_path=path)  # no n = 12 entry
+    default = make_baseline(GoalSeekingController, "reach", params, speed, 12, 1.0, 0.04,
+                            settings_path=path)  # no n = 12 entry
     assert (default.gain, default.max_offset, default.turn_gain) == (0.5, 0.3, 9.0)
+    # the task class builds the same controller from its own facts (its class, name and the gait of its n)
+    from_task = TASKS["reach"].make_baseline(PhysicsConfig(n_links=8), num_envs=3, settings=path)
+    assert type(from_task) is GoalSeekingController and from_task.num_envs == 3
+    assert (from_task.gain, from_task.max_offset, from_task.turn_gain) == (0.2, 0.25, 4.0)
 
 
 @pytest.mark.parametrize("data, match", [
@@ -53,17 +59,22 @@ def test_make_baseline_applies_the_settings_of_its_n(tmp_path):
 ])
 def test_bad_settings_files_are_one_line_errors(tmp_path, data, match):
     with pytest.raises(ValueError, match=match):
-        baseline_settings("reach", 8, _write(tmp_path, data))
+        baseline_settings("reach", GoalSeekingController, 8, _write(tmp_path, data))
 
 
-def test_bad_task_is_rejected():
-    with pytest.raises(ValueError, match="task must be one of"):
-        baseline_settings("swim", 8)
+def test_a_setting_of_another_controller_is_rejected(tmp_path):
+    with pytest.raises(ValueError, match="unknown setting 'hysteresis'"):
+        baseline_settings("path", LineOfSightController, 8, _write(tmp_path, {"path": {8: {"settings": {"hysteresis": 2}}}}))
+
+
+def test_a_task_without_a_baseline_says_so():
+    with pytest.raises(ValueError, match="task has no baseline controller"):
+        Task.make_baseline(PhysicsConfig(n_links=5))
 
 
 def test_the_residual_wrapper_steers_with_the_settings_of_its_n():
     residual = SerpenoidResidualAction(gym.make("snake_env/SnakeReach12-v1"))
-    settings = baseline_settings("reach", 12)
+    settings = baseline_settings("reach", GoalSeekingController, 12)
     controller = residual.controller
     assert {name: getattr(controller, name) for name in settings} == settings
 
@@ -102,7 +113,7 @@ def test_search_writes_an_entry_that_baseline_settings_reads(tmp_path, monkeypat
     output = tmp_path / "baselines.yaml"
     assert main(["--env", "snake_env/SnakeReach8-v1", "--episodes", "16", "--validate-episodes", "16",
                  "--top", "2", "--output", str(output)]) == 0
-    settings = baseline_settings("reach", 8, output)
+    settings = baseline_settings("reach", GoalSeekingController, 8, output)
     assert settings["gain"] in (0.17, 0.5) and settings["max_offset"] == 0.2 and settings["turn_gain"] > 0
     entry = yaml.safe_load(output.read_text())["reach"][8]
     assert entry["search"]["settings_evaluated"] == 2 and 0.0 <= entry["search"]["validation_success_rate"] <= 1.0

@@ -171,8 +171,8 @@ def test_fuzz_cli_rejects_a_non_positive_budget(capsys):
 def test_the_fold_time_bounds_the_first_fold_from_rest(n_links, max_torque, length, mass):
     """The report's fold time is a lower bound: the paper model at rest, driven by the maximum
     torque with alternating signs, folds no sooner (resolved to 1/200 of the bound)."""
-    from snake_env.envs import physics
-    from snake_env.envs.config import PhysicsConfig
+    from snake_env import physics
+    from snake_env.physics.config import PhysicsConfig
 
     inertia = mass * length ** 2 / 12.0
     bound = fuzz.fold_time({"inertia": inertia, "max_torque": max_torque})

@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import snake_env  # noqa: F401
-from snake_env.registration import REGISTERED_N_LINKS, TASK_IDS, registered_ids
+from snake_env.registration import REGISTERED_N_LINKS, registered_ids
 from snake_env.tasks import TASKS
 from snake_env.tasks.base import squared_norm
 
@@ -39,9 +39,9 @@ def test_gymnasium_and_sb3_checkers_pass(env_id, kwargs):
     env.close()
 
 
-@pytest.mark.parametrize("row", TASK_IDS, ids=[row[0] for row in TASK_IDS])
-def test_registered_version_is_the_newest_of_the_version_history_and_older_ones_are_refused(row):
-    prefix, task, version, _, _ = row
+@pytest.mark.parametrize("task", TASKS)
+def test_registered_version_is_the_newest_of_the_version_history_and_older_ones_are_refused(task):
+    prefix, version = TASKS[task].id_prefix, TASKS[task].version
     history = [int(v) for v in re.findall(r"^\s*\* v(\d+):", TASKS[task].__doc__, re.MULTILINE)]
     assert history and history[0] == max(history) == version
     if version > 0:  # gymnasium names the newest version in its error
@@ -51,13 +51,14 @@ def test_registered_version_is_the_newest_of_the_version_history_and_older_ones_
 
 def test_every_family_is_registered_for_every_n_with_its_task_settings():
     ids = registered_ids()
-    for prefix, task, version, steps, goal in TASK_IDS:
-        cls = TASKS[task]
-        assert (cls.max_episode_steps, cls.goal_env) == (steps, goal), f"registration row of {task} disagrees"
+    assert len(ids) == len(TASKS) * (1 + len(REGISTERED_N_LINKS))
+    for task, cls in TASKS.items():
+        prefix, version = cls.id_prefix, cls.version
         for n in REGISTERED_N_LINKS:
             spec = gym.spec(f"snake_env/{prefix}{n}-v{version}")
             assert spec.kwargs == {"task": task, "n_links": n}
-            assert spec.max_episode_steps == steps
+            assert spec.max_episode_steps == cls.max_episode_steps
+            assert spec.entry_point.endswith("SnakeGoalEnv" if cls.goal_env else "SnakeEnv")
             assert spec.vector_entry_point == "snake_env.envs.vector:SnakeVectorEnv"
         assert ids[f"snake_env/{prefix}-v{version}"] == {"task": task}
     env = gym.make("snake_env/SnakePath-v2", n_links=7)

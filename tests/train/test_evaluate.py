@@ -85,7 +85,8 @@ def test_plot_and_gif_are_written_headless(ppo_run, tmp_path):
 
 
 def test_serpenoid_baseline_matches_the_search_score(tmp_path):
-    from snake_env.agents.search import load_params, rollout_speeds
+    from snake_env.agents.search import rollout_speeds
+    from snake_env.controllers.gaits import load_params
 
     report = evaluate_json(tmp_path, "--baseline", "serpenoid", "--env", ENV, "--episodes", "1", "--seed", "4",
                            "--max-steps", "120")
@@ -123,7 +124,7 @@ def bad_model_cases(ppo_run: Path, tmp_path: Path):
         ([str(bad_stats)], "not readable VecNormalize statistics"),
         ([str(tmp_path)], "holds no model.zip"),
         (["--baseline", "serpenoid", "--env", "snake_env/Snake30-v2", "--serpenoid-config", str(no_gaits)],
-         "no serpenoid gait for env"),
+         "no serpenoid gait for n_links=30"),
         ([str(ppo_run), "--video", str(tmp_path / "v.avi")], "--video must end with one of"),
     ]
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
+from snake_env.tasks import TASKS
 from snake_env.train.evaluate import main as eval_main
 from snake_env.train.task_metrics import EpisodeRecorder, summarize_task
 from snake_env.train.train import main as train_main
@@ -84,7 +85,7 @@ def test_baseline_on_the_wrong_task_is_a_one_line_error(capsys):
 
 
 def test_cost_of_transport_is_actuator_energy_over_weight_times_distance():
-    recorder = EpisodeRecorder("path", dt=0.5, weight=10.0, reset_info={"x_position": 0.0, "y_position": 0.0})
+    recorder = EpisodeRecorder(TASKS["path"].episode_metrics, dt=0.5, weight=10.0, reset_info={"x_position": 0.0, "y_position": 0.0})
     for x, power, error in ((3.0, 4.0, 0.5), (3.0, 2.0, -0.1), (3.0, 0.0, 0.3)):
         recorder.add({"x_position": x, "y_position": 4.0 if power == 4.0 else 0.0, "actuator_power": power,
                       "cross_track_error": error, "path_speed": 1.0})
@@ -94,7 +95,7 @@ def test_cost_of_transport_is_actuator_energy_over_weight_times_distance():
     assert metrics["actuator_energy"] == pytest.approx(3.0)
     assert metrics["cost_of_transport"] == pytest.approx(3.0 / (10.0 * 9.0))
     assert metrics["mean_cross_track_error"] == pytest.approx(0.3)
-    summary = summarize_task("path", [metrics, {**metrics, "cost_of_transport": math.nan}])
+    summary = summarize_task(TASKS["path"].episode_metrics, [metrics, {**metrics, "cost_of_transport": math.nan}])
     assert summary["mean_cost_of_transport"] == pytest.approx(3.0 / 90.0)  # nan episodes left out
 
 

@@ -5,7 +5,7 @@ given units and defaults, and validated: its field names are the env kwargs
 and the YAML ``env_kwargs`` keys, for every task, in the single and the vector
 env alike. Adding a setting is one field line here (plus, if the kernel needs
 it, one argument where :meth:`PhysicsConfig.build` fills
-:class:`~snake_env.envs.physics.PhysicsParams`).
+:class:`~snake_env.physics.stepping.PhysicsParams`).
 
 Validation is driven by each field's ``metadata`` (:func:`setting`): a bad
 value raises ``ValueError`` with one line naming the argument, the allowed
@@ -15,15 +15,15 @@ values and the unit.
 from __future__ import annotations
 
 import math
-import numbers
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from snake_env.dynamics import SnakeModel
 from snake_env.dynamics.validation import check_n_links
 
-from .physics import PhysicsParams
+from .settings import check_fields, setting
+from .stepping import PhysicsParams
 
 # Defaults (units in the field docs). One env step = sim_dt * frame_skip = 0.04 s, like Swimmer-v5.
 DEFAULT_SIM_DT = 0.01  # s, one RK4 step
@@ -55,88 +55,6 @@ MAX_REFINEMENTS_LIMIT = 12
 # imaginary axis; sim_dt must keep the stiffest rate of the setting inside it with margin.
 RK4_STABLE_RATE_STEP = 2.5
 GRAVITY = 9.81  # m/s^2, for the cost of transport only (the snake moves on a plane)
-
-
-def number(name, value, unit, *, minimum=None, strict=True, integer=False, maximum=None):
-    """A finite real scalar (int when ``integer``) within bounds, else ValueError naming ``name``."""
-    kind = numbers.Integral if integer else numbers.Real
-    bound = "" if minimum is None else f" {'>' if strict else '>='} {minimum}"
-    if maximum is not None:
-        bound += f" and <= {maximum:g}"
-    what = f"{'an integer' if integer else 'a finite number'}{bound} ({unit})"
-    if isinstance(value, bool) or not isinstance(value, kind) or not math.isfinite(value):
-        raise ValueError(f"{name} must be {what}, got {value!r}")
-    if minimum is not None and (value <= minimum if strict else value < minimum):
-        raise ValueError(f"{name} must be {what}, got {value!r}")
-    if maximum is not None and value > maximum:
-        raise ValueError(f"{name} must be {what}, got {value!r}")
-    return int(value) if integer else float(value)
-
-
-def flag(name, value):
-    if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{name} must be True or False, got {value!r}")
-    return bool(value)
-
-
-def setting(default, unit, kind="real", *, minimum=None, strict=True, maximum=None, doc=""):
-    """A dataclass field whose metadata drives :func:`check_fields`.
-
-    kind: "real", "int", "bool", "optional_real" (None allowed), "per_link"
-    (scalar or length-n sequence, checked by :class:`SnakeModel`), "choice"
-    (``maximum`` then holds the allowed values) or "range" (a (low, high) pair).
-    """
-    return field(default=default, metadata=dict(unit=unit, kind=kind, minimum=minimum, strict=strict,
-                                                maximum=maximum, doc=doc))
-
-
-def check_value(name: str, value, meta: dict):
-    kind = meta["kind"]
-    if kind == "bool":
-        return flag(name, value)
-    if kind == "per_link":
-        return value
-    if kind == "choice":
-        if value not in meta["maximum"]:
-            raise ValueError(f"{name} must be one of {list(meta['maximum'])}, got {value!r}")
-        return value
-    if kind == "range":
-        if not isinstance(value, (list, tuple)) or len(value) != 2:
-            raise ValueError(f"{name} must be a pair [low, high] ({meta['unit']}), got {value!r}")
-        low, high = (number(name, v, meta["unit"], minimum=meta["minimum"], strict=False) for v in value)
-        if low > high:
-            raise ValueError(f"{name} must be a pair [low, high] with low <= high ({meta['unit']}), got {value!r}")
-        return (low, high)
-    if kind == "optional_real" and value is None:
-        return None
-    unit = meta["unit"] + (", or None to disable" if kind == "optional_real" else "")
-    return number(name, value, unit, minimum=meta["minimum"], strict=meta["strict"], integer=kind == "int",
-                  maximum=meta["maximum"])
-
-
-def check_fields(obj) -> None:
-    """Validate and normalize every field of a (frozen) dataclass built with :func:`setting`."""
-    for f in fields(obj):
-        if f.metadata:
-            object.__setattr__(obj, f.name, check_value(f.name, getattr(obj, f.name), f.metadata))
-
-
-def split_kwargs(kwargs: dict, *owners) -> list[dict]:
-    """Split ``kwargs`` among dataclasses by field name; an unknown name -> one-line ValueError."""
-    parts = [{} for _ in owners]
-    names = [{f.name for f in fields(owner)} for owner in owners]
-    unknown = []
-    for key, value in kwargs.items():
-        for part, owned in zip(parts, names):
-            if key in owned:
-                part[key] = value
-                break
-        else:
-            unknown.append(key)
-    if unknown:
-        valid = sorted(set().union(*names))
-        raise ValueError(f"unknown argument(s) {sorted(unknown)}; valid arguments: {valid}")
-    return parts
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Serpenoid gait: the curve's math, the controller against the env's state, the search."""
+"""Serpenoid gait: the curve's math and the controller against the env's state."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 import snake_env  # noqa: F401
-from snake_env.agents import search
-from snake_env.agents.serpenoid import SerpenoidController, SerpenoidParams, joint_slices, reference
+from snake_env.controllers.serpenoid import SerpenoidController, SerpenoidParams, joint_slices, reference
 
 ENV = "snake_env/Snake3-v2"
 
@@ -99,50 +98,3 @@ def test_params_round_trip_and_reject_unknown_keys():
     assert SerpenoidParams.from_dict(params.to_dict()) == params
     with pytest.raises(ValueError, match="unknown serpenoid parameter"):
         SerpenoidParams.from_dict({**params.to_dict(), "phase": 1.0})
-
-
-def test_rollout_speed_is_the_cm_displacement_rate():
-    """The search score (mean of info x_velocity in the vector env) equals the
-    single env's CM x displacement over the episode time."""
-    params = SerpenoidParams("torque", amplitude=0.9, frequency=10.0, phase_lag=0.1)
-    steps = 150
-    speed = search.rollout_speeds(ENV, {}, [params], steps, seed=5)[0]
-    env = gym.make(ENV)
-    controller = SerpenoidController(params, 3, env.unwrapped.max_torque, env.unwrapped.dt)
-    obs, info = env.reset(seed=5)
-    x0 = info["x_position"]
-    for _ in range(steps):
-        obs, _, _, _, info = env.step(controller.act(obs))
-    assert speed == pytest.approx((info["x_position"] - x0) / (steps * env.unwrapped.dt), rel=1e-9)
-    assert speed > 0.1  # a travelling torque wave propels the 3-link snake
-    env.close()
-
-
-def test_search_returns_its_best_scored_gait(tmp_path):
-    result = search.search(ENV, population=8, generations=1, elite=2, search_steps=40, repeats=2, final_steps=60,
-                           final_episodes=3, finalists=2, seed=1)
-    assert result.evaluated == 2 * 2 * 8 * 2 + 2 * 2 * 3
-    # the winner is the best mean of the re-scoring (reproducible from the seed)
-    again = search.search(ENV, population=8, generations=1, elite=2, search_steps=40, repeats=2, final_steps=60,
-                          final_episodes=3, finalists=2, seed=1)
-    assert again.params == result.params and again.speed == result.speed
-    scores = search.final_scores(ENV, {}, [result.params], 60, 3, seed=1 + 1000)
-    assert scores.shape == (3, 1) and np.all(np.isfinite(scores))
-    path = tmp_path / "serpenoid.yaml"
-    search.save_result(ENV, {}, result, path)
-    params, env_kwargs = search.load_params(ENV, path)
-    assert params == result.params and env_kwargs == {}
-    with pytest.raises(ValueError, match="no serpenoid gait for env"):
-        search.load_params("snake_env/Snake30-v2", path)
-
-
-def test_shipped_gaits_reproduce_their_recorded_speed():
-    """configs/serpenoid.yaml: the stored gaits reproduce, from starts the
-    search never saw, a mean forward speed close to the one it recorded."""
-    gaits = search.load_gaits()
-    assert "snake_env/Snake3-v2" in gaits and "snake_env/Snake5-v2" in gaits
-    for env_id in ("snake_env/Snake3-v2", "snake_env/Snake5-v2"):
-        params, env_kwargs = search.load_params(env_id)
-        recorded = gaits[env_id]["search"]["mean_forward_velocity"]
-        speed = search.rollout_speeds(env_id, env_kwargs, [params] * 8, 1000, seed=123).mean()
-        assert speed > 0.8 * recorded > 0

@@ -9,7 +9,7 @@ a vector env, which is how :mod:`snake_env.agents.search` evaluates a population
   saturated at the env's torque limit. With only two degrees of freedom
   (eq. 2: u = (V_1, thetadot_1)) the body follows the head, so for n >= 4 an
   arbitrary reference is not kinematically admissible and the PD fights the
-  wheel constraints (DESIGN.md); the search keeps the better family.
+  wheel constraints; the search keeps the better family.
 * ``torque``: an open-loop travelling torque wave,
   T_i(t) / max_torque = alpha sin(omega t + (i-1) beta) + gamma,  clipped to [-1, 1].
 
@@ -131,6 +131,7 @@ class SerpenoidController:
             raise ValueError(f"max_torque must be > 0 (N m), got {max_torque!r}")
         if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be > 0 (s), got {dt!r}")
+        self.gaits = tuple(plist)
         self.is_pd = np.array([p.family == "pd" for p in plist])
         self.n_links = n_links
         self.max_torque = float(max_torque)
@@ -141,6 +142,11 @@ class SerpenoidController:
                  for f in fields(SerpenoidParams) if f.name != "family"}
         self._p = table
         self.time = np.zeros(num_envs)
+
+    @property
+    def params(self) -> SerpenoidParams | None:
+        """The gait every env runs, or None when the envs run different gaits."""
+        return self.gaits[0] if len(set(self.gaits)) == 1 else None
 
     @property
     def phase(self) -> np.ndarray:

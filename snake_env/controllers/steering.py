@@ -26,7 +26,7 @@ gamma is clipped to +-``max_offset``. All read only the observation
 in units of ``max_torque``, batched over a leading axis.
 
 :func:`make_baseline` builds a task's baseline with the settings of
-``configs/baselines.yaml`` for its number of links (found by
+``baselines.yaml`` (:func:`snake_env.configfiles.config_path`) for its number of links (found by
 :mod:`snake_env.agents.baseline_search`); a task and n without an entry use the
 constructor defaults, tuned on Snake5.
 """
@@ -34,15 +34,16 @@ constructor defaults, tuned on Snake5.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import yaml
 
-from snake_env.agents.serpenoid import SerpenoidParams, joint_slices
+from snake_env.configfiles import config_path
+
+from .serpenoid import SerpenoidParams, joint_slices
 
 TURN_GAIN = 9.0  # rad/s of yaw rate per rad of joint offset, measured on Snake5 with its searched gait
-BASELINE_SETTINGS = Path(__file__).resolve().parent.parent / "configs" / "baselines.yaml"
+SETTINGS_FILE = "baselines.yaml"  # resolved by snake_env.configfiles.config_path
 
 
 def _check_positive(**values) -> None:
@@ -69,6 +70,8 @@ def mean_link_angle(obs: np.ndarray, n_links: int, include_position: bool) -> np
 class SteeredSerpenoid:
     """The inner loop: a PD-tracked serpenoid whose phase is integrated (so the
     frequency may change) and whose offset gamma steers."""
+
+    tunable: tuple[str, ...] = ()  # the constructor settings a baselines.yaml entry may give per n
 
     def __init__(self, params: SerpenoidParams, n_links: int, max_torque: float, dt: float, num_envs: int = 1,
                  include_position: bool = False, gain: float = 0.3, lookahead: float = 0.6,
@@ -150,6 +153,8 @@ class LineOfSightController(SteeredSerpenoid):
     where this is Liljebäck's LOS law. The path observation ends with e (m), cos and
     sin of (psi - theta_bar), curvature kappa (1/m)."""
 
+    tunable = ("gain", "lookahead", "max_offset", "speed_scale")  # what the settings file may set per n
+
     def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
                  include_position: bool = False, gain: float = 0.1, lookahead: float = 3.0,
                  max_offset: float = 0.25, speed_scale: float = 1.0):
@@ -172,6 +177,8 @@ class SteeringController(SteeredSerpenoid):
     """Command task: heading reference integrated from w_cmd, frequency scaled by v_cmd / ``gait_speed``.
 
     The command observation ends with v_cmd (m/s), w_cmd (rad/s), filtered v, w."""
+
+    tunable = ("gain", "max_offset")
 
     def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
                  include_position: bool = False, gain: float = 0.3, max_offset: float = 0.15):
@@ -213,6 +220,8 @@ class GoalSeekingController(SteeredSerpenoid):
     Reads the reach task's Dict observation (``observation``, ``achieved_goal`` =
     CM (m), ``desired_goal`` (m)).
     """
+
+    tunable = ("gain", "max_offset", "hysteresis", "turn_gain")
 
     def __init__(self, params, n_links, max_torque, dt, gait_speed: float, num_envs: int = 1,
                  include_position: bool = False, gain: float = 0.5, max_offset: float = 0.3,
@@ -276,47 +285,40 @@ class GoalSeekingController(SteeredSerpenoid):
         return physics, offset, direction, single
 
 
-# task name -> its steered baseline (``snake-eval --baseline`` and the ``serpenoid_residual`` wrapper)
-TASK_BASELINES = {"path": LineOfSightController, "command": SteeringController, "reach": GoalSeekingController}
-# the settings configs/baselines.yaml may give per task and n (the rest is geometry or the gait)
-TUNABLE_SETTINGS = {"path": ("gain", "lookahead", "max_offset", "speed_scale"),
-                    "command": ("gain", "max_offset"),
-                    "reach": ("gain", "max_offset", "hysteresis", "turn_gain")}
-
-
-def load_baseline_settings(path=BASELINE_SETTINGS) -> dict:
-    """``{task: {n_links: {"settings": {...}, "search": {...}}}}`` from ``path``; {} if it does not exist."""
-    path = Path(path)
+def load_baseline_settings(path=None) -> dict:
+    """``{task: {n_links: {"settings": {...}, "search": {...}}}}`` from the settings file; {} if it does not exist."""
+    path = config_path(SETTINGS_FILE, path)
     data = (yaml.safe_load(path.read_text()) if path.is_file() else None) or {}
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise ValueError(f"{path} must map a task name to {{n_links: {{settings: {{name: value}}}}}}")
     return data
 
 
-def baseline_settings(task: str, n_links: int, path=BASELINE_SETTINGS) -> dict:
-    """The ``task`` baseline's settings for ``n_links`` links from ``path`` (the ``settings`` of
-    ``{task: {n: {settings: {name: value}}}}``); {} when there is no entry (the constructor defaults)."""
-    if task not in TASK_BASELINES:
-        raise ValueError(f"task must be one of {sorted(TASK_BASELINES)}, got {task!r}")
+def baseline_settings(task: str, controller: type[SteeredSerpenoid], n_links: int, path=None) -> dict:
+    """The settings of the ``task``'s baseline (a ``controller``) for ``n_links`` links from the settings file
+    (the ``settings`` of ``{task: {n: {settings: {name: value}}}}``); {} when there is no entry (the
+    constructor defaults). Only the controller's ``tunable`` settings may appear."""
+    path = config_path(SETTINGS_FILE, path)
     entry = load_baseline_settings(path).get(task, {}).get(int(n_links))
     if entry is None:
         return {}
     entry = entry.get("settings") if isinstance(entry, dict) else None
     if not isinstance(entry, dict):
         raise ValueError(f"{path}: {task} n_links={n_links} needs a mapping 'settings' of setting: value")
-    unknown = sorted(set(entry) - set(TUNABLE_SETTINGS[task]))
+    unknown = sorted(set(entry) - set(controller.tunable))
     if unknown:
         raise ValueError(f"{path}: {task} n_links={n_links} has unknown setting {unknown[0]!r}; allowed: "
-                         f"{list(TUNABLE_SETTINGS[task])}")
+                         f"{list(controller.tunable)}")
     for name, value in entry.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"{path}: {task} n_links={n_links} setting {name!r} must be a number, got {value!r}")
     return {name: float(value) for name, value in entry.items()}
 
 
-def make_baseline(task: str, params: SerpenoidParams, gait_speed: float, n_links: int, max_torque: float,
-                  dt: float, num_envs: int = 1, include_position: bool = False, settings_path=BASELINE_SETTINGS):
-    """The ``task``'s baseline controller with its settings for ``n_links`` (:func:`baseline_settings`)."""
-    settings = baseline_settings(task, n_links, settings_path)
-    return TASK_BASELINES[task](params, n_links, max_torque, dt, gait_speed=float(gait_speed), num_envs=num_envs,
-                                include_position=include_position, **settings)
+def make_baseline(controller: type[SteeredSerpenoid], task: str, params: SerpenoidParams, gait_speed: float,
+                  n_links: int, max_torque: float, dt: float, num_envs: int = 1, include_position: bool = False,
+                  settings_path=None):
+    """The ``task``'s baseline, a ``controller``, with its settings for ``n_links`` (:func:`baseline_settings`)."""
+    settings = baseline_settings(task, controller, n_links, settings_path)
+    return controller(params, n_links, max_torque, dt, gait_speed=float(gait_speed), num_envs=num_envs,
+                      include_position=include_position, **settings)

@@ -1,12 +1,13 @@
-"""The env's pure physics step (snake_env.envs.physics) against the numpy
+"""The env's pure physics step (snake_env.physics.stepping) against the numpy
 dynamics, the work-energy balance, and the batch/single equivalence."""
 
 import numpy as np
 import pytest
 
 from snake_env.dynamics import rk4_step
-from snake_env.envs import SnakeEnv, physics
-from snake_env.envs.physics import AUX_FAILED, AUX_KINETIC, AUX_WORK, AUX_X, AUX_Y
+from snake_env import physics
+from snake_env.envs import SnakeEnv
+from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_WORK, AUX_X, AUX_Y
 
 
 def _random_states(rng, n, batch):

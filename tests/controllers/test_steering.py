@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import snake_env  # noqa: F401
-from snake_env.agents.path_following import (GoalSeekingController, LineOfSightController, SteeringController,
+from snake_env.controllers.steering import (GoalSeekingController, LineOfSightController, SteeringController,
                                              mean_link_angle)
-from snake_env.agents.search import load_params
-from snake_env.agents.serpenoid import SerpenoidController, SerpenoidParams
+from snake_env.controllers.gaits import load_params
+from snake_env.controllers.serpenoid import SerpenoidController, SerpenoidParams
 
 GAIT, _ = load_params("snake_env/Snake5-v2")
 

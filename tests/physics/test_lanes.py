@@ -1,13 +1,15 @@
 """The env step through the lane (SIMD) kernel against the per-snake step
-``physics._step_one``, and the batch/single bit-for-bit equality with the
+``stepping._step_one``, and the batch/single bit-for-bit equality with the
 cases that leave the lanes: large angles and non-finite states."""
 
 import numpy as np
 import pytest
 
 from snake_env.dynamics import compiled
-from snake_env.envs import SnakeEnv, physics
-from snake_env.envs.physics import AUX_FAILED, AUX_KINETIC, AUX_SIZE, AUX_WORK
+from snake_env import physics
+from snake_env.physics import stepping
+from snake_env.envs import SnakeEnv
+from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_SIZE, AUX_WORK
 
 
 def _states(rng, n, batch, bend=1.2):
@@ -23,7 +25,7 @@ def _step_one_each(params, q, u, torques):
     obs = np.empty((q.shape[0], params.obs_size))
     aux = np.empty((q.shape[0], AUX_SIZE))
     for b in range(q.shape[0]):
-        physics._step_one(params.mass, params.half_length, params.inertia, params.joint_damping,
+        stepping._step_one(params.mass, params.half_length, params.inertia, params.joint_damping,
                           params.wheel_damping, params.joint_limit, params.limit_stiffness, params.limit_damping,
                           params.sim_dt, params.frame_skip, params.include_position, params.energy_tolerance,
                           params.energy_floor, params.error_tolerance, params.max_refinements, q[b], u[b], torques[b], obs[b], aux[b])
@@ -94,7 +96,7 @@ def test_threaded_lane_step_equals_the_serial_one(rng):
     B = 3 * compiled.LANES + 1
     q, u, torques = _states(rng, 4, B, bend=0.6)
     outputs = []
-    for kernel in (physics._step_lanes, physics._step_lanes_parallel):
+    for kernel in (stepping._step_lanes, stepping._step_lanes_parallel):
         qk, uk = q.copy(), u.copy()
         obs, aux = np.empty((B, p.obs_size)), np.empty((B, AUX_SIZE))
         kernel(p.mass, p.half_length, p.inertia, p.joint_damping, p.wheel_damping, p.joint_limit,

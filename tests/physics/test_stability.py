@@ -13,9 +13,10 @@ from hypothesis import strategies as st
 
 from snake_env.benchmarks import fuzz
 from snake_env.dynamics import compiled
-from snake_env.envs import physics
-from snake_env.envs.physics import AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_WORK
-from snake_env.envs.config import max_stable_sim_dt
+from snake_env import physics
+from snake_env.physics import stepping
+from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_WORK
+from snake_env.physics.config import max_stable_sim_dt
 from snake_env.envs.snake import SnakeEnv
 from snake_env.envs.vector import SnakeVectorEnv
 
@@ -251,7 +252,7 @@ def _refined_step_by_whole_attempts(p, q0, u0, torques):
     whole attempt (no stop at the first substep over the error tolerance), judged by the
     env's own check. Returns (code, r, q, u, work)."""
     m, h = p.mass, p.half_length
-    k0, _, _ = physics._measures(m, h, p.inertia, q0, u0)
+    k0, _, _ = stepping._measures(m, h, p.inertia, q0, u0)
     code = r = None
     for r in range(1, p.max_refinements + 1):
         q, u = q0.copy(), u0.copy()
@@ -260,8 +261,8 @@ def _refined_step_by_whole_attempts(p, q0, u0, torques):
                                                p.limit_stiffness, p.limit_damping, q, u, torques, p.sim_dt / sub,
                                                p.frame_skip * sub, p.error_tolerance, h[0], False)
         finite = bool(np.isfinite(q).all() and np.isfinite(u).all() and math.isfinite(work))
-        k1, rate, fold = physics._measures(m, h, p.inertia, q, u) if finite else (math.nan,) * 3
-        code, _ = physics._verdict(finite and math.isfinite(k1), err, k0, k1, work, rate, fold, p.sim_dt / sub,
+        k1, rate, fold = stepping._measures(m, h, p.inertia, q, u) if finite else (math.nan,) * 3
+        code, _ = stepping._verdict(finite and math.isfinite(k1), err, k0, k1, work, rate, fold, p.sim_dt / sub,
                                    p.energy_tolerance, p.energy_floor)
         if code == 0:
             return code, r, q, u, work

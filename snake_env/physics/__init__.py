@@ -1,0 +1,22 @@
+"""The physics half of dm_control's Physics/Task split, free of Gymnasium.
+
+- :mod:`.settings`: typed, self-validating dataclass fields (shared with the tasks);
+- :mod:`.config`: :class:`PhysicsConfig`, every physical kwarg with its unit and bounds,
+  and the refusal of settings RK4 cannot step;
+- :mod:`.stepping`: the checked, batched step (Brax style: a pure function of
+  state and torques, batching a leading axis) over the compiled kernels of
+  :mod:`snake_env.dynamics.compiled`.
+
+Layers read top-down: dynamics -> physics -> controllers -> tasks -> envs ->
+wrappers; nothing here imports a layer above it.
+"""
+
+from .config import GRAVITY, PhysicsConfig
+from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_SIZE, AUX_VX, AUX_VY, AUX_WORK,
+                       AUX_X, AUX_Y, FAIL_ENERGY, FAIL_ERROR, FAIL_FOLD, FAIL_NONFINITE, FAIL_RUNAWAY, FAILURE_REASONS,
+                       FOLD_ANGLE, MAX_SUBSTEP_ANGLE, PhysicsParams, observation_size, observe, reset, step, step_inplace)
+
+__all__ = ["GRAVITY", "PhysicsConfig", "PhysicsParams", "step", "step_inplace", "reset", "observe",
+           "observation_size", "FAILURE_REASONS", "MAX_SUBSTEP_ANGLE", "FOLD_ANGLE", "FAIL_NONFINITE", "FAIL_ENERGY",
+           "FAIL_RUNAWAY", "FAIL_FOLD", "FAIL_ERROR", "AUX_SIZE", "AUX_X", "AUX_Y", "AUX_VX", "AUX_VY", "AUX_KINETIC",
+           "AUX_WORK", "AUX_FAILED", "AUX_REFINEMENTS", "AUX_RESIDUAL"]
