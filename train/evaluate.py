@@ -111,7 +111,7 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
             obs, reward, terminated, truncated, info = env.step(act(obs))
             total += float(reward)
             speeds.append(float(info["x_velocity"]))
-            recorder.add(info)
+            recorder.add(info, base.joint_state())
             xy.append((info["x_position"], info["y_position"]))
             steps += 1
             if terminated or truncated or (max_steps is not None and steps >= max_steps):
@@ -149,17 +149,25 @@ def summarize(results: list[dict]) -> dict:
 def print_task_metrics(task: str, metrics: dict) -> None:
     units = {"success_rate": "", "mean_cost_of_transport": "", "mean_final_goal_distance": " m",
              "mean_cross_track_error": " m", "mean_path_speed": " m/s", "mean_speed_error": " m/s",
-             "mean_yaw_rate_error": " rad/s"}
+             "mean_yaw_rate_error": " rad/s", "mean_dominant_joint_frequency": " Hz", "max_peak_joint_rate": " rad/s",
+             "mean_power": " W", "max_peak_power": " W"}
     parts = [f"{key} = {'n/a' if value is None else f'{value:.4g}'}{units.get(key, '')}" for key, value in metrics.items()]
-    print(f"task {task}: " + ", ".join(parts))
+    print(f"{task}: " + ", ".join(parts))
+
+
+def _cell(value, width: int, spec: str) -> str:
+    """A table cell: the number, or n/a (a metric without a value, e.g. a gait frequency of a short episode)."""
+    return f"{'n/a':>{width}}" if value is None else f"{value:>{width}{spec}}"
 
 
 def print_table(title: str, results: list[dict], summary: dict) -> None:
     print(title)
-    print(f"{'episode':>7} {'seed':>6} {'return':>10} {'v_x (m/s)':>10} {'distance (m)':>12} {'steps':>6}")
+    print(f"{'episode':>7} {'seed':>6} {'return':>10} {'v_x (m/s)':>10} {'distance (m)':>12} {'steps':>6} "
+          f"{'gait (Hz)':>9} {'max rate (rad/s)':>16} {'flips':>6}")
     for r in results:
         print(f"{r['episode']:>7} {r['seed']:>6} {r['return']:>10.3f} {r['forward_velocity']:>10.4f} "
-              f"{r['distance']:>12.3f} {r['length']:>6}")
+              f"{r['distance']:>12.3f} {r['length']:>6} {_cell(r.get('dominant_joint_frequency'), 9, '.2f')} "
+              f"{_cell(r.get('peak_joint_rate'), 16, '.1f')} {_cell(r.get('torque_sign_flip_share'), 6, '.0%')}")
     print(f"{'mean':>7} {'':>6} {summary['mean_return']:>10.3f} {summary['mean_forward_velocity']:>10.4f} "
           f"{summary['mean_distance']:>12.3f} {summary['mean_length']:>6.0f}")
     print(f"{'std':>7} {'':>6} {summary['std_return']:>10.3f} {summary['std_forward_velocity']:>10.4f}")
@@ -215,26 +223,29 @@ class VideoWriter:
 def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=None, hud=True):
     """Yield the rgb frames of one episode (seed ``seed``), with the heads-up display:
     time, forward speed (mean over the last second), distance from the origin, return,
-    and a scale bar in metres. The camera follows the snake's centre of mass."""
+    the gait metrics of the episode so far, and a scale bar in metres. The camera follows the snake's centre of mass."""
     from snake_env.envs.hud import draw_hud, episode_lines
+    from snake_env.train.gait_metrics import GaitRecorder
 
     obs, info = env.reset(seed=seed)
     reset_controller()
     dt = float(env.unwrapped.dt)
     window = max(1, int(round(SPEED_WINDOW_S / dt)))
     speeds, total, steps = [], 0.0, 0
+    gait = GaitRecorder(dt)
 
     def decorate(frame):
         if not hud:
             return frame
         renderer = getattr(env.unwrapped, "_renderer", None)
         lines = episode_lines(steps * dt, float(np.mean(speeds[-window:])) if speeds else 0.0,
-                              float(info["distance_from_origin"]), total, label)
+                              float(info["distance_from_origin"]), total, label, gait.metrics() if steps else None)
         return draw_hud(frame, lines, getattr(renderer, "scale", None))
 
     yield decorate(env.render())
     while True:
         obs, reward, terminated, truncated, info = env.step(act(obs))
+        gait.add(env.unwrapped.joint_state(), info["actuator_power"])
         total += float(reward)
         speeds.append(float(info["x_velocity"]))
         steps += 1
@@ -458,15 +469,18 @@ def evaluate(args) -> dict:
         task = env.unwrapped.task
     finally:
         env.close()
+    from snake_env.train.gait_metrics import summarize_gait
     from snake_env.train.task_metrics import summarize_task
 
     summary = summarize(results)
     task_summary = summarize_task(task.episode_metrics, results)
+    gait_summary = summarize_gait(results)
     task = task.name
     print_table(title, results, summary)
-    print_task_metrics(task, task_summary)
+    print_task_metrics(f"task {task}", task_summary)
+    print_task_metrics("gait", gait_summary)
     report = {"env_id": env_id, "env_kwargs": env_kwargs, **meta, "deterministic": args.deterministic,
-              "seed": args.seed, "n_episodes": args.episodes, **summary, "task": task, **task_summary,
+              "seed": args.seed, "n_episodes": args.episodes, **summary, "task": task, **task_summary, **gait_summary,
               "episodes": results}
     if args.json_path:
         from snake_env.train.atomic import atomic_write_text

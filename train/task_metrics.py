@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from snake_env.train.gait_metrics import GaitRecorder
+
 REDUCTIONS = {
     "any": lambda v: float(np.any(v)),
     "last": lambda v: float(v[-1]),
@@ -26,7 +28,8 @@ REDUCTIONS = {
 
 
 class EpisodeRecorder:
-    """Collects the step info of one episode; :meth:`metrics` reduces it."""
+    """Collects the step info (and the joint state, for the gait metrics of
+    :mod:`snake_env.train.gait_metrics`) of one episode; :meth:`metrics` reduces it."""
 
     def __init__(self, episode_metrics: dict, dt: float, weight: float, reset_info: dict):
         self.episode_metrics = dict(episode_metrics)  # the task class's {metric: (info key, reduction)}
@@ -35,9 +38,13 @@ class EpisodeRecorder:
         self.positions = [(reset_info["x_position"], reset_info["y_position"])]
         self.energy = 0.0  # J of actuator work, sum |T dphi|
         self.values = {key: [] for key, _ in self.episode_metrics.values()}
+        self.gait = GaitRecorder(dt)
 
-    def add(self, info: dict) -> None:
+    def add(self, info: dict, joint_state=None) -> None:
+        """One step's info; ``joint_state`` (phi, phidot, torque) after it adds the gait metrics."""
         self.positions.append((info["x_position"], info["y_position"]))
+        if joint_state is not None:
+            self.gait.add(joint_state, info["actuator_power"])
         self.energy += float(info["actuator_power"]) * self.dt
         for key in self.values:
             self.values[key].append(float(info[key]))
@@ -47,6 +54,8 @@ class EpisodeRecorder:
         travelled = float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) if len(xy) > 1 else 0.0
         cot = self.energy / (self.weight * travelled) if travelled > 1e-9 else math.nan
         out = {"actuator_energy": self.energy, "path_length": travelled, "cost_of_transport": cot}
+        if self.gait.angles:
+            out.update(self.gait.metrics())
         for name, (key, reduction) in self.episode_metrics.items():
             out[name] = REDUCTIONS[reduction](np.asarray(self.values[key])) if self.values[key] else math.nan
         return out

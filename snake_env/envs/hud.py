@@ -129,8 +129,21 @@ def draw_hud(frame: np.ndarray, lines, pixels_per_metre=None, scale: int = 2) ->
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
-def episode_lines(time_s: float, speed: float, distance: float, episode_return: float, label: str | None = None):
-    """The HUD lines of a locomotion episode: time (s), forward speed (m/s), distance from the origin (m), return."""
+def episode_lines(time_s: float, speed: float, distance: float, episode_return: float, label: str | None = None,
+                  gait: dict | None = None):
+    """The HUD lines of a locomotion episode: time (s), forward speed (m/s), distance from the origin (m), return;
+    with ``gait`` (the metrics of ``snake_env.train.gait_metrics`` so far) also the dominant joint frequency (Hz),
+    the peak joint rate (rad/s), the torque sign-flip share and the mean actuator power (W)."""
     lines = [label.upper()] if label else []
-    return lines + [f"TIME   {time_s:7.2f} S", f"SPEED  {speed:+7.2f} M/S", f"DIST   {distance:7.2f} M",
-                    f"RETURN {episode_return:+7.1f}"]
+    lines += [f"TIME   {time_s:7.2f} S", f"SPEED  {speed:+7.2f} M/S", f"DIST   {distance:7.2f} M",
+              f"RETURN {episode_return:+7.1f}"]
+    if gait:
+        def value(key, spec):
+            number = gait.get(key)
+            return "N/A" if number is None or not math.isfinite(number) else format(number, spec)
+
+        lines += [f"GAIT   {value('dominant_joint_frequency', '7.2f')} HZ",
+                  f"RATE   {value('peak_joint_rate', '7.1f')} RAD/S",
+                  f"FLIPS  {value('torque_sign_flip_share', '7.0%')}",
+                  f"POWER  {value('mean_power', '7.1f')} W"]
+    return lines

@@ -53,6 +53,17 @@ class SnakeEnv(TaskEnvBase, gym.Env):
         """Copies of (q, u): q = (theta_1..theta_n, x, y) (eq. 1), u = (V_1, thetadot_1) (eq. 2)."""
         return self._batch.q[0].copy(), self._batch.u[0].copy()
 
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of (phi, phidot, torque) of every joint (n-1,): the angles theta_{k+1} - theta_k (rad,
+        not wrapped), their rates omega_{k+1} - omega_k (rad/s, eq. 7) and the torques (N m) held over
+        the last step (zero before the first), for gait metrics."""
+        q = self._batch.q[0]
+        n = self.n_links
+        blocks = self.observation_structure  # the joint rates are the physics observation's last block
+        start = sum(size for block, size in blocks.items() if block not in ("skipped_position", "joint_rates"))
+        return (np.diff(q[:n]), self._batch.physics_obs[0, start:start + n - 1].copy(),
+                self._batch.torques[0].copy())
+
     def set_state(self, q, u):
         """Put the snake in state (q, u) (the task state is kept); return the new observation."""
         self._batch.set_state(np.asarray(q, np.float64)[None], np.asarray(u, np.float64)[None])
