@@ -26,6 +26,9 @@ from snake_env.physics.settings import number, split_kwargs
 from snake_env.physics import AUX_FAILED
 
 
+ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
+
+
 def make_task_and_config(task, kwargs: dict) -> tuple[Task, PhysicsConfig]:
     """Split env kwargs into the task's and the physics' (one-line error on an unknown name)."""
     cls = task_class(task)
@@ -116,7 +119,8 @@ class SnakeBatch:
         self.num_envs = B
         self.physics_observation_space = physics_observation_space(n, self.params.include_position)
         self.single_observation_space = task.observation_space(config, self.physics_observation_space)
-        self.step_info_keys = COMMON_STEP_INFO_KEYS + task.step_info_keys
+        energy = (ENERGY_KEY,) if task.energy_cost_weight else ()
+        self.step_info_keys = COMMON_STEP_INFO_KEYS + task.step_info_keys + energy
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
@@ -161,6 +165,10 @@ class SnakeBatch:
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         info, failures = common_step_info(ctx)
         info.update(task_info)
+        if self.task.energy_cost_weight:
+            # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default
+            info[ENERGY_KEY] = -self.task.energy_cost_weight * info["actuator_power"]
+            rewards = rewards + info[ENERGY_KEY]
         if failures:
             failed = info["sim_failure"]
             # A failed step was undone (the pre-step state is kept): it is not an outcome of

@@ -263,6 +263,8 @@ class Task:
 
     reset_noise_scale: float = setting(DEFAULT_RESET_NOISE_SCALE, "rad, m/s, rad/s", minimum=0.0, strict=False,
                                        doc="half-width of the uniform start noise")
+    energy_cost_weight: float = setting(0.0, "per W", minimum=0.0, strict=False,
+                                        doc="weight of the actuator power in the reward (a cost; 0: none)")
 
     name: ClassVar[str] = ""
     id_prefix: ClassVar[str] = ""
@@ -339,6 +341,15 @@ class Task:
         return None
 
     # ------------------------------------------------------------------ helpers
+    def energy_term(self, info, shape) -> np.ndarray:
+        """The power cost (reward units, <= 0) of the steps behind ``info``: its ``reward_energy``,
+        from one info dict or an array of them (HER's relabelling passes the stored infos)."""
+        if info is None:
+            raise ValueError("compute_reward needs the steps' info (its reward_energy) when energy_cost_weight > 0")
+        if isinstance(info, dict):
+            return np.broadcast_to(np.asarray(info["reward_energy"], np.float64), shape)
+        return np.array([item["reward_energy"] for item in np.ravel(info)], np.float64).reshape(shape)
+
     @staticmethod
     def total_mass(config: PhysicsConfig) -> float:
         return float(np.sum(np.broadcast_to(np.asarray(config.mass, dtype=np.float64), (config.n_links,))))

@@ -64,7 +64,7 @@ class CommandTask(Task):
     - Truncation: after 1000 steps (40 s, 8 commands), or on a simulator failure.
 
     ## Arguments
-    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, and:
+    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, `energy_cost_weight`, and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|

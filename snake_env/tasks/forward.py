@@ -103,6 +103,8 @@ class ForwardTask(Task):
       (Swimmer-v5 measures it at the front tip, which rewards wagging the tip).
     - ctrl_cost = `ctrl_cost_weight` * ||a||^2 with a the clipped action.
     `info` has `reward_forward` and `reward_ctrl` (= -ctrl_cost).
+    With `energy_cost_weight` > 0 (every task) the reward also loses
+    `energy_cost_weight` * `actuator_power` (W), reported as `info["reward_energy"]`.
 
     ## Starting State
     theta_k ~ U(-s, s) (rad) for every link, V_1 ~ U(-s, s) (m/s),
@@ -156,6 +158,7 @@ class ForwardTask(Task):
     | `render_mode` | None | "rgb_array" or "human" |
     | `width`, `height` | 480, 480 | frame size (pixels) |
     | `reset_noise_scale` | 0.1 | half-width of the uniform start noise (rad, m/s, rad/s) |
+    | `energy_cost_weight` | 0.0 | reward lost per W of actuator power (every task) |
 
     This task's arguments:
 

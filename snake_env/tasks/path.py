@@ -67,7 +67,7 @@ class PathTask(Task):
     - Truncation: after 1000 steps (40 s), or on a simulator failure.
 
     ## Arguments
-    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, and:
+    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, `energy_cost_weight`, and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|

@@ -58,7 +58,7 @@ class ReachTask(Task):
     - Truncation: after 400 steps (16 s), or on a simulator failure (see `Snake{n}-v2`).
 
     ## Arguments
-    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, and:
+    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, `energy_cost_weight`, and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|
@@ -108,7 +108,15 @@ class ReachTask(Task):
         return {"observation": obs, "achieved_goal": aux[:, [AUX_X, AUX_Y]], "desired_goal": state["goal"]}
 
     def compute_reward(self, achieved_goal, desired_goal, info=None):
-        """Reward for goals (..., 2) (m), vectorized over leading axes; ``info`` is unused."""
+        """Reward for goals (..., 2) (m), vectorized over leading axes (the step's reward). ``info``
+        (a dict, or an array of the steps' dicts as HER passes them) is read only with
+        ``energy_cost_weight`` > 0, for its ``reward_energy``."""
+        reward = self._goal_reward(achieved_goal, desired_goal)
+        if self.energy_cost_weight:
+            reward = reward + self.energy_term(info, reward.shape)
+        return reward
+
+    def _goal_reward(self, achieved_goal, desired_goal):
         d = np.linalg.norm(np.asarray(achieved_goal, np.float64) - np.asarray(desired_goal, np.float64), axis=-1)
         if self.reward_type == "sparse":
             return -(d > self.distance_threshold).astype(np.float64)
@@ -116,7 +124,7 @@ class ReachTask(Task):
 
     def evaluate(self, config, ctx: StepContext, state):
         achieved = ctx.cm
-        reward = self.compute_reward(achieved, state["goal"])
+        reward = self._goal_reward(achieved, state["goal"])
         distance = np.linalg.norm(achieved - state["goal"], axis=-1)
         success = distance <= self.distance_threshold
         terminated = success & self.terminate_on_success

@@ -163,10 +163,10 @@ def test_bad_kwargs_raise_one_line_errors_naming_the_argument(env_id, kwargs, na
         assert "\n" not in str(info.value)
 
 
-@pytest.mark.parametrize("reward_type", ["sparse", "dense"])
-def test_compute_reward_on_a_batch_equals_the_step_rewards(reward_type):
+@pytest.mark.parametrize("reward_type, energy_cost_weight", [("sparse", 0.0), ("dense", 0.0), ("dense", 0.02)])
+def test_compute_reward_on_a_batch_equals_the_step_rewards(reward_type, energy_cost_weight):
     env = gym.make("snake_env/SnakeReach5-v1", reward_type=reward_type, distance_threshold=0.5,
-                   goal_distance_range=(0.3, 0.6))
+                   goal_distance_range=(0.3, 0.6), energy_cost_weight=energy_cost_weight)
     achieved, desired, rewards, infos = [], [], [], []
     rng = np.random.default_rng(0)
     for seed in range(4):
@@ -189,8 +189,38 @@ def test_compute_reward_on_a_batch_equals_the_step_rewards(reward_type):
         assert np.array_equal(successes, rewards == 0.0)
     # the vector env's compute_reward (the one SB3's HerReplayBuffer calls) agrees
     vec = gym.make_vec("snake_env/SnakeReach5-v1", num_envs=2, vectorization_mode="vector_entry_point",
-                       reward_type=reward_type, distance_threshold=0.5)
-    assert np.array_equal(vec.unwrapped.compute_reward(np.array(achieved), np.array(desired), None), rewards)
+                       reward_type=reward_type, distance_threshold=0.5, energy_cost_weight=energy_cost_weight)
+    vec_infos = None if not energy_cost_weight else np.array(infos)
+    assert np.array_equal(vec.unwrapped.compute_reward(np.array(achieved), np.array(desired), vec_infos), rewards)
+    if energy_cost_weight:
+        assert all(i["reward_energy"] == -energy_cost_weight * i["actuator_power"] for i in infos)
+        assert any(i["reward_energy"] < 0 for i in infos)
+        with pytest.raises(ValueError, match="needs the steps' info"):
+            env.unwrapped.compute_reward(np.array(achieved), np.array(desired), None)
+
+
+@pytest.mark.parametrize("task", ["forward", "command", "path"])
+def test_energy_cost_is_the_actuator_power_off_by_default(task):
+    """energy_cost_weight: reward = the task's reward - weight * actuator_power (W), in the single and the
+    vector env alike; at its default 0 neither the reward nor the info keys change."""
+    env_id = f"snake_env/{TASKS[task].id_prefix}5-v{TASKS[task].version}"
+    rng = np.random.default_rng(1)
+    actions = rng.uniform(-1, 1, (30, 4))
+    plain, costly = gym.make(env_id), gym.make(env_id, energy_cost_weight=0.05)
+    vec = gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", energy_cost_weight=0.05)
+    plain.reset(seed=2)
+    costly.reset(seed=2)
+    vec.reset(seed=2)
+    for action in actions:
+        *_, reward, _, _, info = plain.step(action)
+        *_, cost_reward, _, _, cost_info = costly.step(action)
+        _, vec_reward, _, _, vec_info = vec.step(action[None])
+        assert "reward_energy" not in info
+        assert cost_info["reward_energy"] == -0.05 * cost_info["actuator_power"]
+        assert cost_reward == reward + cost_info["reward_energy"] and vec_reward[0] == cost_reward
+        assert vec_info["reward_energy"][0] == cost_info["reward_energy"]
+    with pytest.raises(ValueError, match="energy_cost_weight must be a finite number >= 0"):
+        gym.make(env_id, energy_cost_weight=-1.0)
 
 
 def test_reach_terminates_on_success_and_reports_it():
