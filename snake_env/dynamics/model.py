@@ -13,6 +13,7 @@ from . import kane, kane_paper, lagrange, newton_euler
 from .forces import generalized_power, torque_power
 from .kinematics import cm_positions, joint_angles, link_speeds
 from .validation import check_n_links, per_link_parameter, result_dtype, state_array
+from .wheel_reactions import lateral_forces
 
 # Paper Table II defaults.
 DEFAULT_MASS = 1.0  # kg
@@ -163,3 +164,9 @@ class SnakeModel:
             raise ValueError(f"method must be one of {list(METHODS)}, got {method!r}")
         q, u, torques = self._state(q, u, torques)
         return FORMULATIONS[method](self, q, u, torques)
+
+    def wheel_lateral_forces(self, q, u, torques):
+        """The wheels' lateral forces lambda (..., n) (N, along each link's normal e_k_perp): eq. 27's
+        multipliers, by the O(n) backward sweep of :mod:`snake_env.dynamics.wheel_reactions`."""
+        q, u, torques = self._state(q, u, torques)
+        return lateral_forces(self, q, u, torques)
