@@ -26,10 +26,11 @@ PROJECT_ONLY_KEYS = ("vec_env", "eval_freq", "n_eval_episodes", "checkpoint_freq
 def zoo_env_wrapper(spec) -> list[dict]:
     """Our ``env_wrapper`` (``{name: kwargs}``, see :mod:`snake_env.wrappers`) in the zoo's form: a list of
     ``{"module.Class": kwargs}`` that ``rl_zoo3.utils.get_wrapper_class`` applies to each single env."""
-    from snake_env.wrappers import WRAPPERS, parse_env_wrapper
+    from snake_env import wrappers
 
-    return [{f"{WRAPPERS[name][0].__module__}.{WRAPPERS[name][0].__name__}": kwargs}
-            for name, kwargs in parse_env_wrapper(spec)]
+    # the public path: every wrapper class is exported by the snake_env.wrappers package
+    return [{f"{wrappers.__name__}.{wrappers.WRAPPERS[name][0].__name__}": kwargs}
+            for name, kwargs in wrappers.parse_env_wrapper(spec)]
 
 
 def zoo_entry(entry: dict, env_id: str | None = None) -> dict:
