@@ -647,3 +647,13 @@ def test_steering_residual_on_the_straight_gait_reads_no_goal():
     config = cfg.build_config("sac", "snake_env/SnakeReach5-v1",
                               overrides=["env_wrapper={steering_residual: {baseline: gait}}"])
     assert config["replay_buffer_class"] == "HerReplayBuffer"
+
+
+def test_phase_observation_on_a_goal_task_extends_the_observation_entry():
+    env = PhaseObservation(gym.make("snake_env/SnakeReach5-v1"), frequencies=[10.0, 20.0])
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs) and obs["observation"].shape == (16,)
+    obs, *_ = env.step(np.zeros(4, np.float32))
+    t = env.unwrapped.dt
+    np.testing.assert_allclose(obs["observation"][-4:], [np.sin(10 * t), np.cos(10 * t), np.sin(20 * t),
+                                                          np.cos(20 * t)], rtol=1e-12)
