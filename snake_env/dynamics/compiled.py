@@ -23,6 +23,11 @@ to act: v0's damper switched on with a jump c phidot there, an error of
 first order in the step that RK4 and its error estimate do not resolve
 (measured: up to 0.2 rad/s in one env step against a fine reference).
 
+Every kernel takes the model's constants as one argument ``model``, the
+tuple of :class:`KernelModel` made by :func:`kernel_model` (the paper-model
+kernels used by :mod:`kane` and :mod:`integrators` take the five arrays of
+``SnakeModel.parameters()`` and make it inside).
+
 Editing this module: numba's on-disk cache (``cache=True``) is checked
 against the file of each cached function only, so kernels of other modules
 that call these (snake_env/physics/stepping.py) keep the old code compiled in.
@@ -32,6 +37,7 @@ Delete the caches after an edit: ``find snake_env -name '*.nb[ci]' -delete``.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -44,6 +50,42 @@ BARRIER_CAP = 0.999  # largest d / R used by the barrier (its factor 1 / (1 - d/
 LIMIT_RAMP = 0.05  # rad: the barrier's onset ramp s(d) = d / (d + LIMIT_RAMP)
 
 
+class KernelModel(NamedTuple):
+    """The constants every dynamics kernel reads: the model's per-link arrays
+    (float64, C-contiguous) and the joint-limit barrier of the module doc.
+
+    Kernels take them as one argument ``model``, the plain tuple of these
+    fields made by :func:`kernel_model`, and unpack it in this order (so the
+    arithmetic is that of separate arguments). A plain tuple, not this
+    NamedTuple: numba's C dispatcher types a plain tuple of arrays and floats,
+    while a NamedTuple argument is typed in Python (measured: ~1.3 us more per
+    NamedTuple argument and call; two would add ~15% to the single env's step
+    of ~18 us).
+    """
+
+    mass: np.ndarray  # m_k (kg), (n,)
+    half_length: np.ndarray  # h_k (m), (n,): half of link k's length
+    inertia: np.ndarray  # I_k (kg m^2) about the link's CM, (n,)
+    joint_damping: np.ndarray  # (N m s/rad), (n-1,): viscous joint friction
+    wheel_damping: np.ndarray  # (N s/m), (n,): rolling resistance of each wheel
+    joint_limit: float = 0.0  # rad: the barrier acts beyond |phi_k| > joint_limit; <= 0: no limits
+    limit_stiffness: float = 0.0  # N m/rad: k of the barrier
+    limit_damping: float = 0.0  # N m s/rad: c of the barrier
+
+
+def kernel_model(mass, half_length, inertia, joint_damping, wheel_damping, joint_limit=0.0, limit_stiffness=0.0,
+                 limit_damping=0.0) -> tuple:
+    """The ``model`` argument of the kernels (see :class:`KernelModel`): its fields
+    as a plain tuple, arrays as float64 C-contiguous (the given arrays themselves
+    when they already are) and scalars as Python floats, so that every caller
+    reuses one compiled (and cached) specialisation. The defaults: no joint limits."""
+    def array(a):
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    return tuple(KernelModel(array(mass), array(half_length), array(inertia), array(joint_damping),
+                             array(wheel_damping), float(joint_limit), float(limit_stiffness), float(limit_damping)))
+
+
 @njit(cache=True, nogil=True, inline="always")
 def inverse_room(limit):
     """1 / (FOLD_ANGLE - limit) (1/rad), the barrier's scale; a limit at or past the fold gets a tiny room."""
@@ -52,14 +94,15 @@ def inverse_room(limit):
 
 
 @njit(cache=True, nogil=True)
-def derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dq, du):
+def derivatives(model, q, u, torques, dq, du):
     """Write qdot into dq (n+2,), udot into du (2,); return dK/dt (W).
 
-    The returned power is that of every load (actuators, damping, limits), so
-    K(t) minus its integral is constant in the continuous model.
-
-    ``limit`` <= 0 disables the joint limits (see the module doc for the barrier).
+    ``model``: :func:`kernel_model`'s tuple. The returned power is that of every
+    load (actuators, damping, limits), so K(t) minus its integral is constant in
+    the continuous model. A joint limit <= 0 disables the limits (see the module
+    doc for the barrier).
     """
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     n = m.shape[0]
     inv_room = inverse_room(limit)
     # channel values of link k: dV/du1, dV/du2, V, Vb and domega/du1, domega/du2, omega, omegab
@@ -139,12 +182,11 @@ def derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, 
 
 
 @njit(cache=True, nogil=True)
-def rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps):
+def rk4_step(model, q, u, torques, dt, n_substeps):
     """Advance one state (q, u) in place by ``n_substeps`` RK4 steps of ``dt``
     with torques held constant; return the work of all loads (J)."""
     workspace = np.empty(rk4_workspace_size(q.shape[0]))
-    return rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps,
-                              workspace)
+    return rk4_step_workspace(model, q, u, torques, dt, n_substeps, workspace)
 
 
 @njit(cache=True, nogil=True)
@@ -154,8 +196,7 @@ def rk4_workspace_size(nq):
 
 
 @njit(cache=True, nogil=True)
-def rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps,
-                       workspace):
+def rk4_step_workspace(model, q, u, torques, dt, n_substeps, workspace):
     """:func:`rk4_step` with caller-owned scratch (``rk4_workspace_size(n+2)``
     floats), so a loop over many steps or snakes allocates nothing.
 
@@ -175,7 +216,7 @@ def rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
     work = 0.0
     for _ in range(n_substeps):
         # stage 1 at (q, u)
-        p1 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, kq, ku)
+        p1 = derivatives(model, q, u, torques, kq, ku)
         for j in range(nq):
             acc_q[j] = kq[j]
             qs[j] = q[j] + half * kq[j]
@@ -184,7 +225,7 @@ def rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
         # stage 2 at the midpoint predicted by stage 1
-        p2 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
+        p2 = derivatives(model, qs, us, torques, kq, ku)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + half * kq[j]
@@ -193,7 +234,7 @@ def rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
         # stage 3 at the midpoint predicted by stage 2
-        p3 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
+        p3 = derivatives(model, qs, us, torques, kq, ku)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + dt * kq[j]
@@ -202,7 +243,7 @@ def rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
         us[0] = u[0] + dt * ku[0]
         us[1] = u[1] + dt * ku[1]
         # stage 4 at the end point predicted by stage 3
-        p4 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
+        p4 = derivatives(model, qs, us, torques, kq, ku)
         for j in range(nq):
             q[j] += sixth * (acc_q[j] + kq[j])
         u[0] += sixth * (acc_u[0] + ku[0])
@@ -212,35 +253,39 @@ def rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
 
 
 @njit(cache=True, parallel=True)
-def rk4_step_batch(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work):
+def rk4_step_batch(model, q, u, torques, dt, n_substeps, work):
     """Batched :func:`rk4_step`: q (B, n+2), u (B, 2), torques (B, n-1) in place; work (B,) out."""
     size = rk4_workspace_size(q.shape[1])
     for b in prange(q.shape[0]):
         workspace = np.empty(size)
-        work[b] = rk4_step_workspace(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q[b], u[b], torques[b],
-                                     dt, n_substeps, workspace)
+        work[b] = rk4_step_workspace(model, q[b], u[b], torques[b], dt, n_substeps, workspace)
 
 
 @njit(cache=True, nogil=True)
 def derivatives_batch_serial(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, power):
     """:func:`derivatives_batch` on one thread: for small batches (e.g. one
     simulation), where starting threads at every RK4 stage costs more than the work."""
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)  # KernelModel without joint limits
     for b in range(q.shape[0]):
-        power[b] = derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq[b], du[b])
+        power[b] = derivatives(model, q[b], u[b], torques[b], dq[b], du[b])
 
 
 @njit(cache=True, parallel=True)
 def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, power):
-    """Batched :func:`derivatives` without joint limits (the paper's model)."""
+    """Batched :func:`derivatives` without joint limits (the paper's model).
+
+    These paper-model kernels (used by :mod:`kane` and :mod:`integrators`) take the
+    five arrays of ``SnakeModel.parameters()`` and make the KernelModel tuple inside."""
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)
     for b in prange(q.shape[0]):
-        power[b] = derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq[b], du[b])
+        power[b] = derivatives(model, q[b], u[b], torques[b], dq[b], du[b])
 
 
 @njit(cache=True, nogil=True)
 def udot_single(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """udot (2,) of one state of the paper's model (no joint limits), written into du."""
     dq = np.empty(q.shape[0])
-    derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q, u, torques, dq, du)
+    derivatives((m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0), q, u, torques, dq, du)
 
 
 @njit(cache=True, nogil=True)
@@ -248,17 +293,19 @@ def udot_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """udot (B, 2) of the paper's model (no joint limits) for q (B, n+2),
     u (B, 2), torques (B, n-1); serial, for the small batches of ``model.udot``."""
     dq = np.empty(q.shape[1])
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)
     for b in range(q.shape[0]):
-        derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq, du[b])
+        derivatives(model, q[b], u[b], torques[b], dq, du[b])
 
 
 @njit(cache=True, parallel=True)
 def udot_batch_parallel(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """:func:`udot_batch` spread over threads, for large batches."""
     nq = q.shape[1]
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)
     for b in prange(q.shape[0]):
         dq = np.empty(nq)
-        derivatives(m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, q[b], u[b], torques[b], dq, du[b])
+        derivatives(model, q[b], u[b], torques[b], dq, du[b])
 
 
 # =========================================================================== lanes
@@ -409,8 +456,7 @@ def _rk4_update(z, acc, k, first, last, c, sixth):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, stage, dt,
-                    estimate=0, inv_tol=0.0, v_ref=1.0):
+def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0):
     """RK4 stage ``stage`` (1..4) of lanes 0..nl-1 of the scratch s: the
     derivative at the stage state (rows QS, US) by the sweep of
     :func:`derivatives`, then the stage's update of (Q, QS, ACC), (U, US, ACCU),
@@ -421,6 +467,7 @@ def rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s,
     singular or NaN state gives inf/NaN (caught by the caller's finite check)
     instead of an exception, and keeps the loops free of exits.
     """
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     n = m.shape[0]
     first = stage == 1
     last = stage == 4
@@ -575,21 +622,21 @@ def rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def rk4_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, dt, n_substeps):
+def rk4_lanes(model, s, nl, dt, n_substeps):
     """``n_substeps`` RK4 steps of lanes 0..nl-1 (loaded by :func:`load_lanes`);
     the work of the loads is added to row H_WORK.
 
     The four stages are written out with constant stage numbers and inlined,
     so each copy keeps only its own RK4 bookkeeping."""
     for _ in range(n_substeps):
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 1, dt)
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 2, dt)
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 3, dt)
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 4, dt)
+        rk4_stage_lanes(model, s, nl, 1, dt)
+        rk4_stage_lanes(model, s, nl, 2, dt)
+        rk4_stage_lanes(model, s, nl, 3, dt)
+        rk4_stage_lanes(model, s, nl, 4, dt)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def rk4_lanes_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, dt, n_substeps, tol, v_ref):
+def rk4_lanes_estimate(model, s, nl, dt, n_substeps, tol, v_ref):
     """:func:`rk4_lanes` (the same RK4, bit for bit) plus an embedded error estimate:
     row H_ERR gets, per lane, the largest over substeps and coordinates of
     |dt/6 (k4 - k5)| / scale, scale = tol * 1 rad for each theta_k,
@@ -600,23 +647,22 @@ def rk4_lanes_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
     inv_tol = 1.0 / tol
     for l in range(nl):
         s[_H_ERR + np.uint64(l)] = 0.0
-    rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 1, dt, 0, inv_tol, v_ref)
-    rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 2, dt, 0, inv_tol, v_ref)
-    rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 3, dt, 0, inv_tol, v_ref)
-    rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 4, dt, 4, inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, 1, dt, 0, inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, 2, dt, 0, inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, 3, dt, 0, inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, 4, dt, 4, inv_tol, v_ref)
     for _ in range(1, n_substeps):
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 1, dt, 1, inv_tol, v_ref)
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 2, dt, 0, inv_tol, v_ref)
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 3, dt, 0, inv_tol, v_ref)
-        rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 4, dt, 4, inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, 1, dt, 1, inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, 2, dt, 0, inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, 3, dt, 0, inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, 4, dt, 4, inv_tol, v_ref)
     # k5 of the last substep: a stage 1 at the final state, which it leaves unchanged
     # (stage 1 writes only the stage state and the running sums)
-    rk4_stage_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, 1, dt, 1, inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, 1, dt, 1, inv_tol, v_ref)
 
 
 @njit(cache=True, nogil=True)
-def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, tol,
-                      v_ref, stop_above_tol=False):
+def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_above_tol=False):
     """:func:`rk4_step` with the error estimate of :func:`rk4_lanes_estimate`;
     returns (work of all loads (J), error estimate / tolerance).
 
@@ -639,7 +685,7 @@ def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, 
     n = nq - 2
     work = 0.0
     err = 0.0
-    p1 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, kq, ku)
+    p1 = derivatives(model, q, u, torques, kq, ku)
     for i in range(n_substeps):
         # stage 1 at (q, u): kq, ku hold it (computed at the end of the previous substep)
         for j in range(nq):
@@ -649,7 +695,7 @@ def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, 
         acc_u[1] = ku[1]
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
-        p2 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
+        p2 = derivatives(model, qs, us, torques, kq, ku)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + half * kq[j]
@@ -657,7 +703,7 @@ def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, 
         acc_u[1] += 2.0 * ku[1]
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
-        p3 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
+        p3 = derivatives(model, qs, us, torques, kq, ku)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + dt * kq[j]
@@ -665,7 +711,7 @@ def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, 
         acc_u[1] += 2.0 * ku[1]
         us[0] = u[0] + dt * ku[0]
         us[1] = u[1] + dt * ku[1]
-        p4 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, qs, us, torques, kq, ku)
+        p4 = derivatives(model, qs, us, torques, kq, ku)
         for j in range(nq):
             q[j] += sixth * (acc_q[j] + kq[j])
             k4q[j] = kq[j]
@@ -675,7 +721,7 @@ def rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, 
         k4u[1] = ku[1]
         work += sixth * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
         # k5 = f(y_{n+1}), the next substep's k1 (FSAL)
-        p1 = derivatives(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, kq, ku)
+        p1 = derivatives(model, q, u, torques, kq, ku)
         for k in range(n):
             e = abs(sixth * (k4q[k] - kq[k])) * inv_tol
             err = e if e > err else err
@@ -749,40 +795,34 @@ def split_lanes(q):
 
 
 @njit(cache=True, nogil=True)
-def _rk4_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work,
-                    index, start, nl, s):
+def _rk4_lane_group(model, q, u, torques, dt, n_substeps, work, index, start, nl, s):
     load_lanes(s, q, u, torques, index, start, nl)
-    rk4_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, dt, n_substeps)
+    rk4_lanes(model, s, nl, dt, n_substeps)
     store_lanes(s, q, u, work, index, start, nl)
 
 
 @njit(cache=True, nogil=True)
-def rk4_step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work):
+def rk4_step_lanes(model, q, u, torques, dt, n_substeps, work):
     """:func:`rk4_step_batch` by the lane kernel on one thread: q (B, n+2),
     u (B, 2), torques (B, n-1) in place; work (B,) out."""
     index, count = split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
-        work[b] = rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q[b], u[b], torques[b], dt,
-                           n_substeps)
-    s = np.empty(lanes_scratch_size(m.shape[0]))
+        work[b] = rk4_step(model, q[b], u[b], torques[b], dt, n_substeps)
+    s = np.empty(lanes_scratch_size(q.shape[1] - 2))
     for start in range(0, count, LANES):
-        _rk4_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work,
-                        index, start, min(LANES, count - start), s)
+        _rk4_lane_group(model, q, u, torques, dt, n_substeps, work, index, start, min(LANES, count - start), s)
 
 
 @njit(cache=True, parallel=True)
-def rk4_step_lanes_parallel(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps,
-                            work):
+def rk4_step_lanes_parallel(model, q, u, torques, dt, n_substeps, work):
     """:func:`rk4_step_lanes` with the lane groups spread over threads."""
     index, count = split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
-        work[b] = rk4_step(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q[b], u[b], torques[b], dt,
-                           n_substeps)
-    size = lanes_scratch_size(m.shape[0])
+        work[b] = rk4_step(model, q[b], u[b], torques[b], dt, n_substeps)
+    size = lanes_scratch_size(q.shape[1] - 2)
     for group in prange((count + LANES - 1) // LANES):
         start = group * LANES
         s = np.empty(size)
-        _rk4_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques, dt, n_substeps, work,
-                        index, start, min(LANES, count - start), s)
+        _rk4_lane_group(model, q, u, torques, dt, n_substeps, work, index, start, min(LANES, count - start), s)

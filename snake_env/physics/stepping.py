@@ -61,6 +61,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -94,6 +96,33 @@ FOLD_ANGLE = compiled.FOLD_ANGLE
 PARALLEL_MIN_WORK = 2 ** 12
 
 
+class StepSettings(NamedTuple):
+    """The integration and check settings every step kernel reads: the
+    :class:`PhysicsParams` fields of the same names and units.
+
+    Kernels take them as one argument ``settings``, the plain tuple of these
+    fields made by :func:`step_settings` (cached as
+    ``PhysicsParams.kernel_settings``), and unpack it in this order; a plain
+    tuple for the reason given at ``compiled.KernelModel`` (call overhead).
+    """
+
+    sim_dt: float  # s: one RK4 step
+    frame_skip: int  # RK4 steps per env step
+    include_position: bool  # the observation starts with the CM position (x, y)
+    energy_tolerance: float  # largest relative work-energy residual of a step
+    energy_floor: float  # J: added to max(K0, K1) in that test
+    error_tolerance: float  # tolerance of the embedded error estimate; inf: not checked
+    max_refinements: int  # substep halvings tried on a failing step
+
+
+def step_settings(sim_dt, frame_skip, include_position, energy_tolerance, energy_floor, error_tolerance,
+                  max_refinements) -> tuple:
+    """The ``settings`` argument of the step kernels (see :class:`StepSettings`), with the
+    field types fixed, so that every caller reuses one compiled (and cached) specialisation."""
+    return tuple(StepSettings(float(sim_dt), int(frame_skip), bool(include_position), float(energy_tolerance),
+                              float(energy_floor), float(error_tolerance), int(max_refinements)))
+
+
 @dataclass(frozen=True)
 class PhysicsParams:
     """Constants of one env: the model's per-link arrays (float64) and the
@@ -112,6 +141,9 @@ class PhysicsParams:
             a relative tolerance of its tiny energy.
         error_tolerance: tolerance of the embedded error estimate (see the module doc); inf: not checked.
         max_refinements: substep halvings tried on a failing step (0: a failing step fails).
+
+    The kernels take these as two arguments, :attr:`kernel_model` (``compiled.KernelModel``)
+    and :attr:`kernel_settings` (:class:`StepSettings`), made on first use.
     """
 
     mass: np.ndarray
@@ -133,6 +165,18 @@ class PhysicsParams:
     @property
     def n_links(self) -> int:
         return int(self.mass.shape[0])
+
+    @cached_property
+    def kernel_model(self) -> tuple:
+        """The kernels' ``model`` argument (``compiled.KernelModel``'s fields), made once."""
+        return compiled.kernel_model(self.mass, self.half_length, self.inertia, self.joint_damping,
+                                     self.wheel_damping, self.joint_limit, self.limit_stiffness, self.limit_damping)
+
+    @cached_property
+    def kernel_settings(self) -> tuple:
+        """The step kernels' ``settings`` argument (:class:`StepSettings`' fields), made once."""
+        return step_settings(self.sim_dt, self.frame_skip, self.include_position, self.energy_tolerance,
+                             self.energy_floor, self.error_tolerance, self.max_refinements)
 
     @property
     def dt(self) -> float:
@@ -170,8 +214,9 @@ def _wrap(phi):
 
 
 @njit(cache=True, nogil=True)
-def _center_of_mass(m, h, q):
+def _center_of_mass(model, q):
     """Mass-weighted CM of the whole snake (m): CM_{k+1} = CM_k + h_k e_k + h_{k+1} e_{k+1} (eq. 3)."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     n = m.shape[0]
     px = q[n]
     py = q[n + 1]
@@ -192,11 +237,12 @@ def _center_of_mass(m, h, q):
 
 
 @njit(cache=True, nogil=True)
-def _observe(m, h, inertia, q, u, include_position, cx, cy, obs):
+def _observe(model, q, u, include_position, cx, cy, obs):
     """Fill obs (see :data:`OBSERVATION_DOC`); return the kinetic energy (J).
 
     Link speeds V_k and rates omega_k follow eqs. 6-7 from u = (V_1, thetadot_1).
     """
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     n = m.shape[0]
     j = 0
     if include_position:
@@ -229,9 +275,10 @@ def _observe(m, h, inertia, q, u, include_position, cx, cy, obs):
 
 
 @njit(cache=True, nogil=True)
-def _measures(m, h, inertia, q, u):
+def _measures(model, q, u):
     """(kinetic energy (J), fastest rate (rad/s), largest wrapped |phi_k| (rad)) of one state:
     the quantities of the step check. Rates are every link's omega_k and joint's phidot_k (eqs. 6-7)."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     n = m.shape[0]
     V = u[0]
     W = u[1]
@@ -252,9 +299,11 @@ def _measures(m, h, inertia, q, u):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, tol, e_floor):
+def _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, settings):
     """(FAIL_* code or 0, relative work-energy residual) of a step; see the module doc.
-    ``err``: the error estimate over the tolerance. Comparisons are written so that NaN fails them."""
+    ``err``: the error estimate over the tolerance; dt_sub: the RK4 substep (s).
+    Comparisons are written so that NaN fails them."""
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     if not finite:
         return FAIL_NONFINITE, math.inf
     if not err <= 1.0:
@@ -270,12 +319,13 @@ def _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, tol, e_floor):
 
 
 @njit(cache=True, nogil=True)
-def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, tol, e_floor,
-                       err_tol, r_first, r_last, q0, u0, torques, k0, q, u):
+def _integrate_checked(model, settings, r_first, r_last, q0, u0, torques, k0, q, u):
     """One env step of one snake from (q0, u0) (kinetic energy k0) by the per-snake RK4
     kernel, with substeps sim_dt / 2^r for r = r_first, ..., r_last until one passes the
     check or one fails by a fold. Returns (code, work (J), r, residual); (q, u) hold the
     accepted state, or (q0, u0) when the step failed (code != 0, work 0)."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     nq = q.shape[0]
     code = FAIL_NONFINITE
     residual = math.inf
@@ -293,8 +343,8 @@ def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
         # FAIL_FOLD), so it stops at the first substep over the tolerance: the same accepted
         # step, bit for bit, without integrating the rest of a rejected one. The finest level
         # runs to the end, so that its verdict (non-finite or error) is that of the whole step.
-        work, err = compiled.rk4_step_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, q, u, torques,
-                                               dt_sub, frame_skip * sub, err_tol, h[0], r < r_last)
+        work, err = compiled.rk4_step_estimate(model, q, u, torques, dt_sub, frame_skip * sub, err_tol, h[0],
+                                               r < r_last)
         if r < r_last and err > 1.0:
             code = FAIL_ERROR
             continue
@@ -305,9 +355,9 @@ def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
         rate = math.nan
         fold = math.nan
         if finite:
-            k1, rate, fold = _measures(m, h, inertia, q, u)
+            k1, rate, fold = _measures(model, q, u)
             finite = math.isfinite(k1)
-        code, residual = _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, tol, e_floor)
+        code, residual = _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, settings)
         if code == 0:
             return 0, work, r, residual
         if code == FAIL_FOLD:  # accurate and folded: a finer substep would fold too (module doc)
@@ -320,28 +370,26 @@ def _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
 
 
 @njit(cache=True, nogil=True)
-def _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-              tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
+def _step_one(model, settings, q, u, torques, obs, aux):
     """Advance one snake in place by one checked env step (see the module doc); fill obs and aux.
 
     A step that fails at the finest substep is undone (q, u keep their
     pre-step values) and its reason put in aux[AUX_FAILED], so no NaN or
     runaway ever leaves the kernel.
     """
-    cx0, cy0 = _center_of_mass(m, h, q)
-    k0, _, _ = _measures(m, h, inertia, q, u)
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
+    cx0, cy0 = _center_of_mass(model, q)
+    k0, _, _ = _measures(model, q, u)
     q0 = q.copy()
     u0 = u.copy()
-    code, work, r, residual = _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt,
-                                                 frame_skip, tol, e_floor, err_tol, 0, max_ref, q0, u0, torques, k0,
-                                                 q, u)
-    cx, cy = _center_of_mass(m, h, q)
+    code, work, r, residual = _integrate_checked(model, settings, 0, max_ref, q0, u0, torques, k0, q, u)
+    cx, cy = _center_of_mass(model, q)
     env_dt = sim_dt * frame_skip
     aux[AUX_X] = cx
     aux[AUX_Y] = cy
     aux[AUX_VX] = (cx - cx0) / env_dt
     aux[AUX_VY] = (cy - cy0) / env_dt
-    aux[AUX_KINETIC] = _observe(m, h, inertia, q, u, include_position, cx, cy, obs)
+    aux[AUX_KINETIC] = _observe(model, q, u, include_position, cx, cy, obs)
     aux[AUX_WORK] = work
     aux[AUX_FAILED] = code
     aux[AUX_REFINEMENTS] = r
@@ -371,8 +419,9 @@ _H_X, _H_Y, _H_U0, _H_U1, _H_WORK, _H_ERR = (
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _center_of_mass_lanes(m, h, total_mass, s, nl, row_x, row_y):
+def _center_of_mass_lanes(model, total_mass, s, nl, row_x, row_y):
     """:func:`_center_of_mass` of lanes 0..nl-1 (state rows Q, X, Y) into rows row_x, row_y (m)."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     n = m.shape[0]
     lanes = _U(nl)
     b0 = compiled.lane_block(0)
@@ -411,11 +460,12 @@ def _center_of_mass_lanes(m, h, total_mass, s, nl, row_x, row_y):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _observe_lanes(m, h, inertia, s, nl):
+def _observe_lanes(model, s, nl):
     """The parts of :func:`_observe` that need a sweep, for lanes 0..nl-1 (state
     rows Q, U): joint angles wrapped to (-pi, pi] and joint rates (per-link rows),
     cos/sin of theta_1, the kinetic energy (J) and the check's fastest rate (rad/s)
     and largest |phi_k| (rad) of :func:`_measures` (header rows)."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     n = m.shape[0]
     lanes = _U(nl)
     b0 = compiled.lane_block(0)
@@ -471,20 +521,20 @@ def _load_lane(s, lane, q, u, work):
 
 
 @njit(cache=True, nogil=True)
-def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                     tol, e_floor, err_tol, max_ref, total_mass, q, u, torques, obs, aux, index, start, nl, s):
+def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s):
     """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES): the
     first attempt in lanes, refinements of failing snakes by the per-snake kernel."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     n = m.shape[0]
     compiled.load_lanes(s, q, u, torques, index, start, nl)
-    _observe_lanes(m, h, inertia, s, nl)  # the pre-step kinetic energy
+    _observe_lanes(model, s, nl)  # the pre-step kinetic energy
     for l in range(nl):
         lane = _U(l)
         s[_H_K0 + lane] = s[_H_KINETIC + lane]
-    _center_of_mass_lanes(m, h, total_mass, s, nl, _H_CX0, _H_CY0)
-    compiled.rk4_lanes_estimate(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s, nl, sim_dt, frame_skip,
-                                err_tol, h[0])
-    _observe_lanes(m, h, inertia, s, nl)
+    _center_of_mass_lanes(model, total_mass, s, nl, _H_CX0, _H_CY0)
+    compiled.rk4_lanes_estimate(model, s, nl, sim_dt, frame_skip, err_tol, h[0])
+    _observe_lanes(model, s, nl)
     # the step check; the pre-step state of each snake is still in q, u (written back only below)
     codes = np.zeros(nl, np.int64)
     refinements = np.zeros(nl, np.int64)
@@ -501,7 +551,7 @@ def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s
             finite = finite and math.isfinite(s[compiled.lane_block(k) + _B_Q + lane])
         k0 = s[_H_K0 + lane]
         code, residual = _verdict(finite, s[_H_ERR + lane], k0, s[_H_KINETIC + lane], s[_H_WORK + lane],
-                                  s[_H_RATE + lane], s[_H_FOLD + lane], sim_dt, tol, e_floor)
+                                  s[_H_RATE + lane], s[_H_FOLD + lane], sim_dt, settings)
         if code == 0:
             residuals[l] = residual
             continue
@@ -509,9 +559,8 @@ def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s
         work = 0.0
         r = 0
         if max_ref > 0 and code != FAIL_FOLD:  # an accurate fold is final (module doc)
-            code, work, r, residual = _integrate_checked(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit,
-                                                         sim_dt, frame_skip, tol, e_floor, err_tol, 1, max_ref, q[b],
-                                                         u[b], torques[b], k0, q1, u1)
+            code, work, r, residual = _integrate_checked(model, settings, 1, max_ref, q[b], u[b], torques[b], k0,
+                                                         q1, u1)
         else:
             q1[:] = q[b]
             u1[:] = u[b]
@@ -522,8 +571,8 @@ def _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, s
         residuals[l] = residual
         redo = True
     if redo:
-        _observe_lanes(m, h, inertia, s, nl)
-    _center_of_mass_lanes(m, h, total_mass, s, nl, _H_CX, _H_CY)
+        _observe_lanes(model, s, nl)
+    _center_of_mass_lanes(model, total_mass, s, nl, _H_CX, _H_CY)
     env_dt = sim_dt * frame_skip
     for l in range(nl):
         lane = _U(l)
@@ -571,72 +620,67 @@ def _total_mass(m):
 
 
 @njit(cache=True, nogil=True)
-def _step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
+def _step_lanes(model, settings, q, u, torques, obs, aux):
     """Step B snakes on one thread: lane groups of compiled.LANES, and
     :func:`_step_one` for the rare snake whose angles exceed the lanes' sin/cos range."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
-        _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                  tol, e_floor, err_tol, max_ref, q[b], u[b], torques[b], obs[b], aux[b])
+        _step_one(model, settings, q[b], u[b], torques[b], obs[b], aux[b])
     s = np.empty(compiled.lanes_scratch_size(m.shape[0]))
     total_mass = _total_mass(m)
     for start in range(0, count, _LANES):
-        _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
-                         include_position, tol, e_floor, err_tol, max_ref, total_mass, q, u, torques, obs, aux, index, start,
+        _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
                          min(_LANES, count - start), s)
 
 
 @njit(cache=True, parallel=True)
-def _step_lanes_parallel(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
-                         include_position, tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
+def _step_lanes_parallel(model, settings, q, u, torques, obs, aux):
     """:func:`_step_lanes` with the lane groups spread over threads."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
-        _step_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                  tol, e_floor, err_tol, max_ref, q[b], u[b], torques[b], obs[b], aux[b])
+        _step_one(model, settings, q[b], u[b], torques[b], obs[b], aux[b])
     size = compiled.lanes_scratch_size(m.shape[0])
     total_mass = _total_mass(m)
     for group in prange((count + _LANES - 1) // _LANES):
         start = group * _LANES
         s = np.empty(size)
-        _step_lane_group(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip,
-                         include_position, tol, e_floor, err_tol, max_ref, total_mass, q, u, torques, obs, aux, index, start,
+        _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
                          min(_LANES, count - start), s)
 
 
 @njit(cache=True, nogil=True)
-def _step_lanes_one(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                    tol, e_floor, err_tol, max_ref, q, u, torques, obs, aux):
+def _step_lanes_one(model, settings, q, u, torques, obs, aux):
     """One snake (1-D arrays) through the lane kernel, so it equals any row of a batch bit for bit."""
-    _step_lanes(m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, sim_dt, frame_skip, include_position,
-                tol, e_floor, err_tol, max_ref, q.reshape((1, q.shape[0])), u.reshape((1, 2)),
+    _step_lanes(model, settings, q.reshape((1, q.shape[0])), u.reshape((1, 2)),
                 torques.reshape((1, torques.shape[0])), obs.reshape((1, obs.shape[0])),
                 aux.reshape((1, aux.shape[0])))
 
 
 @njit(cache=True, nogil=True)
-def _reset_one(m, h, inertia, include_position, noise, q, u, obs, aux):
+def _reset_one(model, settings, noise, q, u, obs, aux):
     """Near-straight start: theta_k = noise_k, u = noise[n:], CM of the whole snake at the origin."""
-    n = m.shape[0]
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
+    n = q.shape[0] - 2
     for k in range(n):
         q[k] = noise[k]
     q[n] = 0.0
     q[n + 1] = 0.0
     u[0] = noise[n]
     u[1] = noise[n + 1]
-    cx, cy = _center_of_mass(m, h, q)
+    cx, cy = _center_of_mass(model, q)
     # shift so the whole snake's CM sits at the origin (x, y of eq. 1 is link 1's CM)
     q[n] = -cx
     q[n + 1] = -cy
-    cx, cy = _center_of_mass(m, h, q)
+    cx, cy = _center_of_mass(model, q)
     aux[AUX_X] = cx
     aux[AUX_Y] = cy
     aux[AUX_VX] = 0.0
     aux[AUX_VY] = 0.0
-    aux[AUX_KINETIC] = _observe(m, h, inertia, q, u, include_position, cx, cy, obs)
+    aux[AUX_KINETIC] = _observe(model, q, u, include_position, cx, cy, obs)
     aux[AUX_WORK] = 0.0
     aux[AUX_FAILED] = 0.0
     aux[AUX_REFINEMENTS] = 0.0
@@ -644,20 +688,21 @@ def _reset_one(m, h, inertia, include_position, noise, q, u, obs, aux):
 
 
 @njit(cache=True, nogil=True)
-def _reset_batch(m, h, inertia, include_position, noise, q, u, obs, aux):
+def _reset_batch(model, settings, noise, q, u, obs, aux):
     for b in range(noise.shape[0]):
-        _reset_one(m, h, inertia, include_position, noise[b], q[b], u[b], obs[b], aux[b])
+        _reset_one(model, settings, noise[b], q[b], u[b], obs[b], aux[b])
 
 
 @njit(cache=True, nogil=True)
-def _observe_batch(m, h, inertia, include_position, q, u, obs, aux):
+def _observe_batch(model, settings, q, u, obs, aux):
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     for b in range(q.shape[0]):
-        cx, cy = _center_of_mass(m, h, q[b])
+        cx, cy = _center_of_mass(model, q[b])
         aux[b, AUX_X] = cx
         aux[b, AUX_Y] = cy
         aux[b, AUX_VX] = 0.0
         aux[b, AUX_VY] = 0.0
-        aux[b, AUX_KINETIC] = _observe(m, h, inertia, q[b], u[b], include_position, cx, cy, obs[b])
+        aux[b, AUX_KINETIC] = _observe(model, q[b], u[b], include_position, cx, cy, obs[b])
         aux[b, AUX_WORK] = 0.0
         aux[b, AUX_FAILED] = 0.0
         aux[b, AUX_REFINEMENTS] = 0.0
@@ -697,11 +742,7 @@ def step(params: PhysicsParams, q, u, torques):
         raise ValueError(f"torques must have shape {q.shape[:-1] + (params.n_links - 1,)}, got {torques.shape}")
     obs, aux = _outputs(params, q.shape[:-1])
     kernel = _kernel(q)
-    kernel(params.mass, params.half_length, params.inertia, params.joint_damping, params.wheel_damping,
-           params.joint_limit, params.limit_stiffness, params.limit_damping, params.sim_dt, params.frame_skip,
-           params.include_position, params.energy_tolerance, params.energy_floor, params.error_tolerance,
-           params.max_refinements,
-           q, u, torques, obs, aux)
+    kernel(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux)
     return q, u, obs, aux
 
 
@@ -715,11 +756,7 @@ def _kernel(q):
 def step_inplace(params: PhysicsParams, q, u, torques, obs, aux):
     """:func:`step` writing into caller-owned float64 C-contiguous buffers (the envs' hot path)."""
     kernel = _kernel(q)
-    kernel(params.mass, params.half_length, params.inertia, params.joint_damping, params.wheel_damping,
-           params.joint_limit, params.limit_stiffness, params.limit_damping, params.sim_dt, params.frame_skip,
-           params.include_position, params.energy_tolerance, params.energy_floor, params.error_tolerance,
-           params.max_refinements,
-           q, u, torques, obs, aux)
+    kernel(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux)
 
 
 def reset(params: PhysicsParams, noise):
@@ -736,7 +773,7 @@ def reset(params: PhysicsParams, noise):
     q = np.empty((flat.shape[0], n + 2))
     u = np.empty((flat.shape[0], 2))
     obs, aux = _outputs(params, (flat.shape[0],))
-    _reset_batch(params.mass, params.half_length, params.inertia, params.include_position, flat, q, u, obs, aux)
+    _reset_batch(params.kernel_model, params.kernel_settings, flat, q, u, obs, aux)
     if noise.ndim == 1:
         return q[0], u[0], obs[0], aux[0]
     return q, u, obs, aux
@@ -748,7 +785,7 @@ def observe(params: PhysicsParams, q, u):
     qf = q.reshape(-1, params.n_links + 2)
     uf = u.reshape(-1, 2)
     obs, aux = _outputs(params, (qf.shape[0],))
-    _observe_batch(params.mass, params.half_length, params.inertia, params.include_position, qf, uf, obs, aux)
+    _observe_batch(params.kernel_model, params.kernel_settings, qf, uf, obs, aux)
     if q.ndim == 1:
         return obs[0], aux[0]
     return obs, aux

@@ -41,7 +41,7 @@ def test_derivatives_match_paper_recursion_and_kinematics(n):
     for _ in range(5):
         q, u, torques = random_state(n, rng)
         dq, du = np.empty(n + 2), np.empty(2)
-        power = compiled.derivatives(*model.parameters(), *NO_LIMIT, q, u, torques, dq, du)
+        power = compiled.derivatives(compiled.kernel_model(*model.parameters(), *NO_LIMIT), q, u, torques, dq, du)
         np.testing.assert_allclose(du, model.udot(q, u, torques, method="kane_paper"), rtol=1e-10, atol=1e-10)
         np.testing.assert_allclose(dq, model.qdot(q, u), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(power, model.power(q, u, torques), rtol=1e-10, atol=1e-12)
@@ -72,7 +72,8 @@ def test_soft_joint_limit_equals_extra_joint_torque():
         phi = np.diff(q[:n])
         assert np.any(np.abs(phi) > limit) and np.any(np.abs(phi) < limit)
         dq, du = np.empty(n + 2), np.empty(2)
-        power = compiled.derivatives(*model.parameters(), limit, k_limit, c_limit, q, u, torques, dq, du)
+        limited = compiled.kernel_model(*model.parameters(), limit, k_limit, c_limit)
+        power = compiled.derivatives(limited, q, u, torques, dq, du)
         effective = limit_torques(model, q, u, torques, limit, k_limit, c_limit)
         np.testing.assert_allclose(du, model.udot(q, u, effective, method="kane_paper"), rtol=1e-10, atol=1e-10)
         np.testing.assert_allclose(power, model.power(q, u, effective), rtol=1e-10, atol=1e-12)
@@ -86,7 +87,7 @@ def test_rk4_step_matches_numpy_rk4_of_paper_recursion():
     dt = 0.01  # s
     q_ref, u_ref, w_ref = numpy_rk4_step(model, q, u, torques, dt, method="kane_paper")
     qc, uc = q.copy(), u.copy()
-    work = compiled.rk4_step(*model.parameters(), *NO_LIMIT, qc, uc, torques, dt, 1)
+    work = compiled.rk4_step(compiled.kernel_model(*model.parameters(), *NO_LIMIT), qc, uc, torques, dt, 1)
     np.testing.assert_allclose(qc, q_ref, rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(uc, u_ref, rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(work, w_ref, rtol=1e-10, atol=1e-14)
@@ -97,12 +98,12 @@ def test_substeps_equal_repeated_single_steps():
     rng = np.random.default_rng(3)
     model = random_model(n, rng)
     q, u, torques = random_state(n, rng)
-    params = (*model.parameters(), 0.4, 20.0, 0.5)
+    model_args = compiled.kernel_model(*model.parameters(), 0.4, 20.0, 0.5)
     qa, ua = q.copy(), u.copy()
-    work_a = compiled.rk4_step(*params, qa, ua, torques, 0.005, 3)
+    work_a = compiled.rk4_step(model_args, qa, ua, torques, 0.005, 3)
     qb, ub, work_b = q.copy(), u.copy(), 0.0
     for _ in range(3):
-        work_b += compiled.rk4_step(*params, qb, ub, torques, 0.005, 1)
+        work_b += compiled.rk4_step(model_args, qb, ub, torques, 0.005, 1)
     np.testing.assert_allclose(qa, qb, rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(ua, ub, rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(work_a, work_b, rtol=1e-12, atol=1e-15)
@@ -117,7 +118,7 @@ def test_batch_kernels_equal_single_kernels():
     limits = (0.5, 30.0, 0.2)
 
     qb, ub, work = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_batch(*params, *limits, qb, ub, torques, 0.01, 2, work)
+    compiled.rk4_step_batch(compiled.kernel_model(*params, *limits), qb, ub, torques, 0.01, 2, work)
     dq, du, power = np.empty_like(q), np.empty_like(u), np.empty(B)
     compiled.derivatives_batch(*params, q, u, torques, dq, du, power)
     du_serial, du_parallel = np.empty_like(u), np.empty_like(u)
@@ -126,12 +127,12 @@ def test_batch_kernels_equal_single_kernels():
     du_single = np.empty(2)
     for b in range(B):
         qs, us = q[b].copy(), u[b].copy()
-        ws = compiled.rk4_step(*params, *limits, qs, us, torques[b], 0.01, 2)
+        ws = compiled.rk4_step(compiled.kernel_model(*params, *limits), qs, us, torques[b], 0.01, 2)
         np.testing.assert_array_equal(qb[b], qs)
         np.testing.assert_array_equal(ub[b], us)
         assert work[b] == ws
         dqs, dus = np.empty(n + 2), np.empty(2)
-        ps = compiled.derivatives(*params, *NO_LIMIT, q[b], u[b], torques[b], dqs, dus)
+        ps = compiled.derivatives(compiled.kernel_model(*params, *NO_LIMIT), q[b], u[b], torques[b], dqs, dus)
         np.testing.assert_array_equal(dq[b], dqs)
         np.testing.assert_array_equal(du[b], dus)
         np.testing.assert_array_equal(du_serial[b], dus)
@@ -150,7 +151,7 @@ def energy_drift(model, q, u, limits, dt, t_end=4.0):
     for step in range(int(round(t_end / dt))):
         t_hold = 0.008 * (step // steps_per_hold)  # s
         torques = np.sin(5.0 * t_hold + np.arange(model.n_joints))  # N m
-        work += compiled.rk4_step(*model.parameters(), *limits, q, u, torques, dt, 1)
+        work += compiled.rk4_step(compiled.kernel_model(*model.parameters(), *limits), q, u, torques, dt, 1)
     return abs(model.kinetic_energy(q, u) - work - k0), work
 
 

@@ -107,9 +107,9 @@ def test_lanes_agree_with_the_per_snake_kernel(n, limits):
     q, u, torques = random_batch(n, B, rng)
     params = model.parameters()
     q_ref, u_ref, w_ref = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_batch(*params, *limits, q_ref, u_ref, torques, 0.01, 3, w_ref)
+    compiled.rk4_step_batch(compiled.kernel_model(*params, *limits), q_ref, u_ref, torques, 0.01, 3, w_ref)
     q_lane, u_lane, w_lane = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_lanes(*params, *limits, q_lane, u_lane, torques, 0.01, 3, w_lane)
+    compiled.rk4_step_lanes(compiled.kernel_model(*params, *limits), q_lane, u_lane, torques, 0.01, 3, w_lane)
     assert not np.array_equal(q_lane, q)  # the state moved
     # a random long snake can start next to a singular configuration, where the step
     # blows up (|u| ~ 1e200 or NaN) in both kernels; compare the regular ones
@@ -120,7 +120,7 @@ def test_lanes_agree_with_the_per_snake_kernel(n, limits):
     np.testing.assert_allclose(u_lane[regular], u_ref[regular], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(w_lane[regular], w_ref[regular], rtol=1e-12, atol=1e-13)
     q_par, u_par, w_par = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_lanes_parallel(*params, *limits, q_par, u_par, torques, 0.01, 3, w_par)
+    compiled.rk4_step_lanes_parallel(compiled.kernel_model(*params, *limits), q_par, u_par, torques, 0.01, 3, w_par)
     np.testing.assert_array_equal(q_par, q_lane)  # NaN equals NaN here
     np.testing.assert_array_equal(u_par, u_lane)
     np.testing.assert_array_equal(w_par, w_lane)
@@ -133,7 +133,7 @@ def test_lanes_match_numpy_rk4_of_the_paper_recursion():
     q, u, torques = random_batch(n, B, rng)
     dt = 0.01  # s
     q_lane, u_lane, work = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_lanes(*model.parameters(), *NO_LIMIT, q_lane, u_lane, torques, dt, 1, work)
+    compiled.rk4_step_lanes(compiled.kernel_model(*model.parameters(), *NO_LIMIT), q_lane, u_lane, torques, dt, 1, work)
     for b in range(B):
         q_ref, u_ref, w_ref = numpy_rk4_step(model, q[b], u[b], torques[b], dt, method="kane_paper")
         np.testing.assert_allclose(q_lane[b], q_ref, rtol=1e-12, atol=1e-13)
@@ -151,16 +151,16 @@ def test_a_snake_alone_equals_the_same_snake_anywhere_in_a_batch():
     q, u, torques = random_batch(n, B, rng)
     params = model.parameters()
     q_all, u_all, w_all = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_lanes(*params, *LIMITS, q_all, u_all, torques, 0.005, 4, w_all)
+    compiled.rk4_step_lanes(compiled.kernel_model(*params, *LIMITS), q_all, u_all, torques, 0.005, 4, w_all)
     order = rng.permutation(B)
     q_perm, u_perm, w_perm = q[order].copy(), u[order].copy(), np.empty(B)
-    compiled.rk4_step_lanes(*params, *LIMITS, q_perm, u_perm, torques[order], 0.005, 4, w_perm)
+    compiled.rk4_step_lanes(compiled.kernel_model(*params, *LIMITS), q_perm, u_perm, torques[order], 0.005, 4, w_perm)
     np.testing.assert_array_equal(q_perm, q_all[order])
     np.testing.assert_array_equal(u_perm, u_all[order])
     np.testing.assert_array_equal(w_perm, w_all[order])
     for b in (0, 9, B - 1):
         q1, u1, w1 = q[b:b + 1].copy(), u[b:b + 1].copy(), np.empty(1)
-        compiled.rk4_step_lanes(*params, *LIMITS, q1, u1, torques[b:b + 1], 0.005, 4, w1)
+        compiled.rk4_step_lanes(compiled.kernel_model(*params, *LIMITS), q1, u1, torques[b:b + 1], 0.005, 4, w1)
         np.testing.assert_array_equal(q1[0], q_all[b])
         np.testing.assert_array_equal(u1[0], u_all[b])
         assert w1[0] == w_all[b]
@@ -178,14 +178,14 @@ def test_large_angles_take_the_per_snake_kernel():
     assert np.abs(turned[2, :n]).min() > compiled.LANE_ANGLE_MAX
     params = model.parameters()
     q_lane, u_lane, w_lane = turned.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_lanes(*params, *LIMITS, q_lane, u_lane, torques, 0.01, 2, w_lane)
+    compiled.rk4_step_lanes(compiled.kernel_model(*params, *LIMITS), q_lane, u_lane, torques, 0.01, 2, w_lane)
     q_one, u_one = turned[2].copy(), u[2].copy()
-    w_one = compiled.rk4_step(*params, *LIMITS, q_one, u_one, torques[2], 0.01, 2)
+    w_one = compiled.rk4_step(compiled.kernel_model(*params, *LIMITS), q_one, u_one, torques[2], 0.01, 2)
     np.testing.assert_array_equal(q_lane[2], q_one)
     np.testing.assert_array_equal(u_lane[2], u_one)
     assert w_lane[2] == w_one
     q_plain, u_plain, w_plain = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_lanes(*params, *LIMITS, q_plain, u_plain, torques, 0.01, 2, w_plain)
+    compiled.rk4_step_lanes(compiled.kernel_model(*params, *LIMITS), q_plain, u_plain, torques, 0.01, 2, w_plain)
     # the turned angles carry ~3e-11 rad of rounding (ulp at 2e5 rad)
     np.testing.assert_allclose(q_lane[2, :n] - 2 * np.pi * 32_000, q_plain[2, :n], atol=1e-9)
     np.testing.assert_allclose(u_lane[2], u_plain[2], atol=1e-9)
@@ -201,10 +201,10 @@ def test_non_finite_lane_does_not_touch_its_neighbours():
     u[3, 0] = np.nan
     params = model.parameters()
     q_lane, u_lane, w_lane = q.copy(), u.copy(), np.empty(B)
-    compiled.rk4_step_lanes(*params, *LIMITS, q_lane, u_lane, torques, 0.01, 2, w_lane)
+    compiled.rk4_step_lanes(compiled.kernel_model(*params, *LIMITS), q_lane, u_lane, torques, 0.01, 2, w_lane)
     assert np.isnan(u_lane[3]).all() and np.isnan(w_lane[3])
     keep = [0, 1, 2, 4, 5]
     q_ok, u_ok, w_ok = q[keep].copy(), u[keep].copy(), np.empty(B - 1)
-    compiled.rk4_step_lanes(*params, *LIMITS, q_ok, u_ok, torques[keep], 0.01, 2, w_ok)
+    compiled.rk4_step_lanes(compiled.kernel_model(*params, *LIMITS), q_ok, u_ok, torques[keep], 0.01, 2, w_ok)
     np.testing.assert_array_equal(q_lane[keep], q_ok)
     np.testing.assert_array_equal(w_lane[keep], w_ok)

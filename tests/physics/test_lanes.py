@@ -25,10 +25,7 @@ def _step_one_each(params, q, u, torques):
     obs = np.empty((q.shape[0], params.obs_size))
     aux = np.empty((q.shape[0], AUX_SIZE))
     for b in range(q.shape[0]):
-        stepping._step_one(params.mass, params.half_length, params.inertia, params.joint_damping,
-                          params.wheel_damping, params.joint_limit, params.limit_stiffness, params.limit_damping,
-                          params.sim_dt, params.frame_skip, params.include_position, params.energy_tolerance,
-                          params.energy_floor, params.error_tolerance, params.max_refinements, q[b], u[b], torques[b], obs[b], aux[b])
+        stepping._step_one(params.kernel_model, params.kernel_settings, q[b], u[b], torques[b], obs[b], aux[b])
     return q, u, obs, aux
 
 
@@ -99,9 +96,7 @@ def test_threaded_lane_step_equals_the_serial_one(rng):
     for kernel in (stepping._step_lanes, stepping._step_lanes_parallel):
         qk, uk = q.copy(), u.copy()
         obs, aux = np.empty((B, p.obs_size)), np.empty((B, AUX_SIZE))
-        kernel(p.mass, p.half_length, p.inertia, p.joint_damping, p.wheel_damping, p.joint_limit,
-               p.limit_stiffness, p.limit_damping, p.sim_dt, p.frame_skip, p.include_position, p.energy_tolerance,
-               p.energy_floor, p.error_tolerance, p.max_refinements, qk, uk, torques, obs, aux)
+        kernel(p.kernel_model, p.kernel_settings, qk, uk, torques, obs, aux)
         outputs.append((qk, uk, obs, aux))
     for serial, threaded in zip(*outputs):
         np.testing.assert_array_equal(threaded, serial)

@@ -251,19 +251,18 @@ def _refined_step_by_whole_attempts(p, q0, u0, torques):
     """The refinement of the module doc written out: levels r = 1..max_refinements, each one
     whole attempt (no stop at the first substep over the error tolerance), judged by the
     env's own check. Returns (code, r, q, u, work)."""
-    m, h = p.mass, p.half_length
-    k0, _, _ = stepping._measures(m, h, p.inertia, q0, u0)
+    h = p.half_length
+    k0, _, _ = stepping._measures(p.kernel_model, q0, u0)
     code = r = None
     for r in range(1, p.max_refinements + 1):
         q, u = q0.copy(), u0.copy()
         sub = 2 ** r
-        work, err = compiled.rk4_step_estimate(m, h, p.inertia, p.joint_damping, p.wheel_damping, p.joint_limit,
-                                               p.limit_stiffness, p.limit_damping, q, u, torques, p.sim_dt / sub,
-                                               p.frame_skip * sub, p.error_tolerance, h[0], False)
+        work, err = compiled.rk4_step_estimate(p.kernel_model, q, u, torques, p.sim_dt / sub, p.frame_skip * sub,
+                                               p.error_tolerance, h[0], False)
         finite = bool(np.isfinite(q).all() and np.isfinite(u).all() and math.isfinite(work))
-        k1, rate, fold = stepping._measures(m, h, p.inertia, q, u) if finite else (math.nan,) * 3
+        k1, rate, fold = stepping._measures(p.kernel_model, q, u) if finite else (math.nan,) * 3
         code, _ = stepping._verdict(finite and math.isfinite(k1), err, k0, k1, work, rate, fold, p.sim_dt / sub,
-                                   p.energy_tolerance, p.energy_floor)
+                                   p.kernel_settings)
         if code == 0:
             return code, r, q, u, work
         if code == physics.FAIL_FOLD:
