@@ -87,8 +87,8 @@ def make_env(kwargs: dict, num_envs: int):
     from snake_env.physics.config import PhysicsConfig, max_stable_sim_dt
     from snake_env.envs.vector import SnakeVectorEnv
 
-    try:
-        return SnakeVectorEnv(num_envs=num_envs, **kwargs), ""
+    try:  # sim_dt given, so the env refuses what RK4 cannot step at 0.01 s instead of choosing substeps
+        return SnakeVectorEnv(num_envs=num_envs, **{"sim_dt": 0.01, **kwargs}), ""
     except ValueError as exc:
         if not str(exc).startswith("sim_dt"):
             return None, str(exc)

@@ -42,6 +42,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from .motor import motor_torque
+
 # Joint angle (rad) at which adjacent links are taken to fold onto each other:
 # the model has no contact between links, so a state at or beyond it is not
 # physical (170 deg: links of width ~17% of their length touch there).
@@ -71,19 +73,25 @@ class KernelModel(NamedTuple):
     joint_limit: float = 0.0  # rad: the barrier acts beyond |phi_k| > joint_limit; <= 0: no limits
     limit_stiffness: float = 0.0  # N m/rad: k of the barrier
     limit_damping: float = 0.0  # N m s/rad: c of the barrier
+    # the joint motors (snake_env.dynamics.motor): the actuator torques are commands clipped to the DC motor's
+    # torque-speed band and current limit; torque_limit = inf is the ideal torque source (no clipping)
+    stall_torque: float = math.inf  # N m
+    inverse_no_load_speed: float = 0.0  # s/rad: 1 / omega_0; 0 for no speed envelope
+    torque_limit: float = math.inf  # N m
 
 
 def kernel_model(mass, half_length, inertia, joint_damping, wheel_damping, joint_limit=0.0, limit_stiffness=0.0,
-                 limit_damping=0.0) -> tuple:
+                 limit_damping=0.0, stall_torque=math.inf, inverse_no_load_speed=0.0, torque_limit=math.inf) -> tuple:
     """The ``model`` argument of the kernels (see :class:`KernelModel`): its fields
     as a plain tuple, arrays as float64 C-contiguous (the given arrays themselves
     when they already are) and scalars as Python floats, so that every caller
-    reuses one compiled (and cached) specialisation. The defaults: no joint limits."""
+    reuses one compiled (and cached) specialisation. The defaults: no joint limits, ideal torque sources."""
     def array(a):
         return np.ascontiguousarray(a, dtype=np.float64)
 
     return tuple(KernelModel(array(mass), array(half_length), array(inertia), array(joint_damping),
-                             array(wheel_damping), float(joint_limit), float(limit_stiffness), float(limit_damping)))
+                             array(wheel_damping), float(joint_limit), float(limit_stiffness), float(limit_damping),
+                             float(stall_torque), float(inverse_no_load_speed), float(torque_limit)))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -102,9 +110,10 @@ def derivatives(model, q, u, torques, dq, du):
     the continuous model. A joint limit <= 0 disables the limits (see the module
     doc for the barrier).
     """
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model
     n = m.shape[0]
     inv_room = inverse_room(limit)
+    motor = t_max < math.inf
     # channel values of link k: dV/du1, dV/du2, V, Vb and domega/du1, domega/du2, omega, omegab
     a1 = 1.0
     a2 = 0.0
@@ -154,7 +163,10 @@ def derivatives(model, q, u, torques, dq, du):
         nVb -= h[k + 1] * nW * phidot
         nWb += nV * phidot * inv_hn
         # eq. 11: joint k acts +T on link k+1, -T on link k
-        T = torques[k] - c_joint[k] * phidot
+        T = torques[k]
+        if motor:  # the command clipped to the motor's torque-speed band and current limit
+            T = motor_torque(T, phidot, stall, inv_w0, t_max)
+        T -= c_joint[k] * phidot
         if limit > 0.0:
             if phi > limit or phi < -limit:
                 excess = phi - limit if phi > limit else phi + limit
@@ -265,7 +277,7 @@ def rk4_step_batch(model, q, u, torques, dt, n_substeps, work):
 def derivatives_batch_serial(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, power):
     """:func:`derivatives_batch` on one thread: for small batches (e.g. one
     simulation), where starting threads at every RK4 stage costs more than the work."""
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)  # KernelModel without joint limits
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)  # no joint limits, ideal motors
     for b in range(q.shape[0]):
         power[b] = derivatives(model, q[b], u[b], torques[b], dq[b], du[b])
 
@@ -276,7 +288,7 @@ def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, po
 
     These paper-model kernels (used by :mod:`kane` and :mod:`integrators`) take the
     five arrays of ``SnakeModel.parameters()`` and make the KernelModel tuple inside."""
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)
     for b in prange(q.shape[0]):
         power[b] = derivatives(model, q[b], u[b], torques[b], dq[b], du[b])
 
@@ -285,7 +297,7 @@ def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, po
 def udot_single(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """udot (2,) of one state of the paper's model (no joint limits), written into du."""
     dq = np.empty(q.shape[0])
-    derivatives((m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0), q, u, torques, dq, du)
+    derivatives((m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf), q, u, torques, dq, du)
 
 
 @njit(cache=True, nogil=True)
@@ -293,7 +305,7 @@ def udot_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """udot (B, 2) of the paper's model (no joint limits) for q (B, n+2),
     u (B, 2), torques (B, n-1); serial, for the small batches of ``model.udot``."""
     dq = np.empty(q.shape[1])
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)
     for b in range(q.shape[0]):
         derivatives(model, q[b], u[b], torques[b], dq, du[b])
 
@@ -302,7 +314,7 @@ def udot_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
 def udot_batch_parallel(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """:func:`udot_batch` spread over threads, for large batches."""
     nq = q.shape[1]
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0)
+    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)
     for b in prange(q.shape[0]):
         dq = np.empty(nq)
         derivatives(model, q[b], u[b], torques[b], dq, du[b])
@@ -467,8 +479,9 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
     singular or NaN state gives inf/NaN (caught by the caller's finite check)
     instead of an exception, and keeps the loops free of exits.
     """
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model
     n = m.shape[0]
+    motor = t_max < math.inf
     first = stage == 1
     last = stage == 4
     c = dt if stage == 3 else 0.5 * dt
@@ -560,7 +573,10 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
                 nVb -= hn * nW * phidot
                 nWb += nV * phidot * inv_hn
                 # eq. 11: joint k acts +T on link k+1, -T on link k; barrier beyond |phi| > limit
-                T = s[o + _B_TQ + l] - cjk * phidot
+                T = s[o + _B_TQ + l]
+                if motor:  # the command clipped to the motor's torque-speed band and current limit
+                    T = motor_torque(T, phidot, stall, inv_w0, t_max)
+                T = T - cjk * phidot
                 if use_limit:
                     beyond = (phi > limit) | (phi < -limit)
                     excess = phi - limit if phi > limit else phi + limit

@@ -188,6 +188,7 @@ class SnakeBatch:
     def env_attributes(self) -> dict:
         """The settings exposed as env attributes (same names as the kwargs)."""
         values = {f.name: getattr(self.config, f.name) for f in fields(self.config)}
+        values["sim_dt"] = float(values["sim_dt"])  # a plain float (the default's marker type is the config's)
         values.update({f.name: getattr(self.task, f.name) for f in fields(self.task)})
         values.update(model=self.model, params=self.params, task=self.task, config=self.config)
         return values

@@ -14,6 +14,7 @@ values and the unit.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -22,11 +23,19 @@ import numpy as np
 from snake_env.dynamics import SnakeModel
 from snake_env.dynamics.validation import check_n_links
 
+from .actuators import ACTUATORS
+from .actuators import resolve as resolve_actuator
 from .settings import check_fields, setting
 from .stepping import PhysicsParams
 
 # Defaults (units in the field docs). One env step = sim_dt * frame_skip = 0.04 s, like Swimmer-v5.
-DEFAULT_SIM_DT = 0.01  # s, one RK4 step
+class _DefaultSimDt(float):
+    """The default sim_dt's type: a float that tells PhysicsConfig it was not given, so that it may be
+    divided into substeps where RK4 needs them (a sim_dt passed explicitly, even 0.01, is honoured
+    or refused)."""
+
+
+DEFAULT_SIM_DT = _DefaultSimDt(0.01)  # s, one RK4 step
 DEFAULT_FRAME_SKIP = 4  # RK4 steps per env step
 DEFAULT_MAX_TORQUE = 1.0  # N m, the paper's Table III torque amplitude
 DEFAULT_JOINT_DAMPING = 0.01  # N m s/rad, viscous joint friction
@@ -96,10 +105,27 @@ class PhysicsConfig:
                                      maximum=1.0, doc="tolerance of RK4's embedded local-error estimate per substep")
     max_refinements: int = setting(DEFAULT_MAX_REFINEMENTS, "substep halvings", "int", minimum=0, strict=False,
                                    maximum=MAX_REFINEMENTS_LIMIT, doc="substep halvings of a failing step")
+    actuator: str = setting("ideal", "-", "choice", maximum=ACTUATORS,
+                            doc='joint motors: "ideal" torque sources, or a DC-motor preset (physics.actuators)')
+    stall_torque: float | None = setting(None, "N m", "optional_real", minimum=0.0,
+                                         doc="motor torque at rest (None: the actuator preset's)")
+    no_load_speed: float | None = setting(None, "rad/s", "optional_real", minimum=0.0,
+                                          doc="joint rate at which the driving torque falls to 0 (None: the preset's)")
+    torque_limit: float | None = setting(None, "N m", "optional_real", minimum=0.0,
+                                         doc="current limit as a joint torque (None: the preset's)")
 
     def __post_init__(self):
+        # sim_dt left at its default may be divided into substeps where RK4 needs them (build); an
+        # explicit sim_dt is honoured or refused
+        object.__setattr__(self, "_auto_substeps", isinstance(self.sim_dt, _DefaultSimDt))
         object.__setattr__(self, "n_links", check_n_links(self.n_links))
         check_fields(self)
+        if self._auto_substeps:  # keep the marker through check_fields and dataclasses.replace
+            object.__setattr__(self, "sim_dt", DEFAULT_SIM_DT)
+        motor = resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed, self.torque_limit)
+        if self.paper_model and motor is not None:
+            raise ValueError(f"paper_model=True has ideal torque sources; do not also pass actuator={self.actuator!r}")
+        object.__setattr__(self, "_motor", motor)
         if self.paper_model:
             # Only the defaults may be overridden silently; anything else contradicts the flag.
             conflicts = [name for name, default in (("joint_damping", DEFAULT_JOINT_DAMPING),
@@ -138,12 +164,19 @@ class PhysicsConfig:
             energy_tolerance=self.energy_tolerance, energy_floor=ENERGY_FLOOR_PER_TORQUE * self.max_torque,
             # "rk4": a plain fixed step, no error control (the guards still apply)
             error_tolerance=self.error_tolerance if refined else math.inf,
-            max_refinements=self.max_refinements if refined else 0)
+            max_refinements=self.max_refinements if refined else 0,
+            **({} if self._motor is None else dict(
+                stall_torque=self._motor.stall_torque, torque_limit=self._motor.torque_limit,
+                inverse_no_load_speed=1.0 / self._motor.no_load_speed if self._motor.no_load_speed > 0 else 0.0)))
         bound, rate_name = max_stable_sim_dt(params, self.max_torque)
         if self.sim_dt > bound:
-            raise ValueError(f"sim_dt must be in (0, {bound:.3g}] s for these settings (the {rate_name} rate "
-                             f"{RK4_STABLE_RATE_STEP / bound:.3g} 1/s needs rate * sim_dt <= {RK4_STABLE_RATE_STEP} "
-                             f"for a stable RK4 step), got {self.sim_dt!r}")
+            if not self._auto_substeps:
+                raise ValueError(f"sim_dt must be in (0, {bound:.3g}] s for these settings (the {rate_name} rate "
+                                 f"{RK4_STABLE_RATE_STEP / bound:.3g} 1/s needs rate * sim_dt <= "
+                                 f"{RK4_STABLE_RATE_STEP} for a stable RK4 step), got {self.sim_dt!r}; leave sim_dt "
+                                 f"at its default to have it divided into substeps")
+            # the fewest equal substeps that RK4 steps stably; the env step dt is unchanged
+            params = dataclasses.replace(params, substeps=math.ceil(self.sim_dt / bound))
         return model, params
 
 
@@ -165,16 +198,20 @@ def stiffest_rates(params: PhysicsParams, max_torque: float) -> dict[str, float]
     so the rates below err on the stiff side); against it act the joint and
     limit dampers (rate c / I_j), the limit spring (sqrt(k / I_j)) and the torque
     (sqrt(max_torque / (I_j * 1 rad)): the rate at which a joint from rest turns a
-    radian); the wheel dampers act on the link masses (c / m).
+    radian); the wheel dampers act on the link masses (c / m); a motor's back-EMF slope
+    tau_s / omega_0 (N m s/rad) is a joint damper too.
     """
     inertia_j = float(np.min(params.inertia)) / 2.0
+    joint_damping = float(np.max(params.joint_damping, initial=0.0))
     rates = {
-        "joint damping": float(np.max(params.joint_damping, initial=0.0)) / inertia_j,
+        "joint damping": joint_damping / inertia_j,
         "wheel damping": float(np.max(params.wheel_damping)) / float(np.min(params.mass)),
         "torque": math.sqrt(max_torque / inertia_j),
     }
+    if params.torque_limit < math.inf:  # the motor's back-EMF slope acts as a joint damper tau_s / omega_0
+        rates["motor back-EMF"] = (params.stall_torque * params.inverse_no_load_speed + joint_damping) / inertia_j
     if params.joint_limit > 0.0:
-        rates["joint-limit damping"] = (params.limit_damping + float(np.max(params.joint_damping, initial=0.0))) / inertia_j
+        rates["joint-limit damping"] = (params.limit_damping + joint_damping) / inertia_j
         rates["joint-limit stiffness"] = math.sqrt(params.limit_stiffness / inertia_j)
     return rates
 

@@ -141,6 +141,10 @@ class PhysicsParams:
             a relative tolerance of its tiny energy.
         error_tolerance: tolerance of the embedded error estimate (see the module doc); inf: not checked.
         max_refinements: substep halvings tried on a failing step (0: a failing step fails).
+        substeps: equal RK4 substeps per sim_dt (chosen by ``PhysicsConfig.build`` where RK4
+            needs a shorter step than sim_dt); the env step stays sim_dt * frame_skip.
+        stall_torque (N m), inverse_no_load_speed (s/rad), torque_limit (N m): the joint motors
+            (:mod:`snake_env.dynamics.motor`); torque_limit = inf: ideal torque sources.
 
     The kernels take these as two arguments, :attr:`kernel_model` (``compiled.KernelModel``)
     and :attr:`kernel_settings` (:class:`StepSettings`), made on first use.
@@ -161,6 +165,10 @@ class PhysicsParams:
     energy_floor: float = 1e-3
     error_tolerance: float = 1e-2
     max_refinements: int = 6
+    substeps: int = 1
+    stall_torque: float = math.inf
+    inverse_no_load_speed: float = 0.0
+    torque_limit: float = math.inf
 
     @property
     def n_links(self) -> int:
@@ -170,13 +178,15 @@ class PhysicsParams:
     def kernel_model(self) -> tuple:
         """The kernels' ``model`` argument (``compiled.KernelModel``'s fields), made once."""
         return compiled.kernel_model(self.mass, self.half_length, self.inertia, self.joint_damping,
-                                     self.wheel_damping, self.joint_limit, self.limit_stiffness, self.limit_damping)
+                                     self.wheel_damping, self.joint_limit, self.limit_stiffness, self.limit_damping,
+                                     self.stall_torque, self.inverse_no_load_speed, self.torque_limit)
 
     @cached_property
     def kernel_settings(self) -> tuple:
-        """The step kernels' ``settings`` argument (:class:`StepSettings`' fields), made once."""
-        return step_settings(self.sim_dt, self.frame_skip, self.include_position, self.energy_tolerance,
-                             self.energy_floor, self.error_tolerance, self.max_refinements)
+        """The step kernels' ``settings`` argument (:class:`StepSettings`' fields), made once; the kernels'
+        RK4 step is sim_dt / substeps, frame_skip * substeps times per env step."""
+        return step_settings(self.sim_dt / self.substeps, self.frame_skip * self.substeps, self.include_position,
+                             self.energy_tolerance, self.energy_floor, self.error_tolerance, self.max_refinements)
 
     @property
     def dt(self) -> float:
@@ -216,7 +226,7 @@ def _wrap(phi):
 @njit(cache=True, nogil=True)
 def _center_of_mass(model, q):
     """Mass-weighted CM of the whole snake (m): CM_{k+1} = CM_k + h_k e_k + h_{k+1} e_{k+1} (eq. 3)."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     n = m.shape[0]
     px = q[n]
     py = q[n + 1]
@@ -242,7 +252,7 @@ def _observe(model, q, u, include_position, cx, cy, obs):
 
     Link speeds V_k and rates omega_k follow eqs. 6-7 from u = (V_1, thetadot_1).
     """
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     n = m.shape[0]
     j = 0
     if include_position:
@@ -278,7 +288,7 @@ def _observe(model, q, u, include_position, cx, cy, obs):
 def _measures(model, q, u):
     """(kinetic energy (J), fastest rate (rad/s), largest wrapped |phi_k| (rad)) of one state:
     the quantities of the step check. Rates are every link's omega_k and joint's phidot_k (eqs. 6-7)."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     n = m.shape[0]
     V = u[0]
     W = u[1]
@@ -324,7 +334,7 @@ def _integrate_checked(model, settings, r_first, r_last, q0, u0, torques, k0, q,
     kernel, with substeps sim_dt / 2^r for r = r_first, ..., r_last until one passes the
     check or one fails by a fold. Returns (code, work (J), r, residual); (q, u) hold the
     accepted state, or (q0, u0) when the step failed (code != 0, work 0)."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     nq = q.shape[0]
     code = FAIL_NONFINITE
@@ -421,7 +431,7 @@ _H_X, _H_Y, _H_U0, _H_U1, _H_WORK, _H_ERR = (
 @njit(cache=True, nogil=True, error_model="numpy")
 def _center_of_mass_lanes(model, total_mass, s, nl, row_x, row_y):
     """:func:`_center_of_mass` of lanes 0..nl-1 (state rows Q, X, Y) into rows row_x, row_y (m)."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     n = m.shape[0]
     lanes = _U(nl)
     b0 = compiled.lane_block(0)
@@ -465,7 +475,7 @@ def _observe_lanes(model, s, nl):
     rows Q, U): joint angles wrapped to (-pi, pi] and joint rates (per-link rows),
     cos/sin of theta_1, the kinetic energy (J) and the check's fastest rate (rad/s)
     and largest |phi_k| (rad) of :func:`_measures` (header rows)."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     n = m.shape[0]
     lanes = _U(nl)
     b0 = compiled.lane_block(0)
@@ -524,7 +534,7 @@ def _load_lane(s, lane, q, u, work):
 def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s):
     """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES): the
     first attempt in lanes, refinements of failing snakes by the per-snake kernel."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     n = m.shape[0]
     compiled.load_lanes(s, q, u, torques, index, start, nl)
@@ -623,7 +633,7 @@ def _total_mass(m):
 def _step_lanes(model, settings, q, u, torques, obs, aux):
     """Step B snakes on one thread: lane groups of compiled.LANES, and
     :func:`_step_one` for the rare snake whose angles exceed the lanes' sin/cos range."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
@@ -638,7 +648,7 @@ def _step_lanes(model, settings, q, u, torques, obs, aux):
 @njit(cache=True, parallel=True)
 def _step_lanes_parallel(model, settings, q, u, torques, obs, aux):
     """:func:`_step_lanes` with the lane groups spread over threads."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]

@@ -60,11 +60,13 @@ class ForwardTask(Task):
     times (only that sub-env; the others keep their result); if it still
     fails, the step is a simulation failure (see Episode End).
     `integrator="rk4"`: plain fixed-step RK4 with the same check, a failing
-    step fails at once (no refinement). Settings whose stiffest rate at rest
-    (joint and limit damping against the smallest joint inertia, limit
-    stiffness, torque, wheel damping) is beyond RK4's stability at `sim_dt`
-    are refused with a ValueError that gives the largest accepted `sim_dt`
-    (`snake_env.physics.config.max_stable_sim_dt`). The physics (limits,
+    step fails at once (no refinement). Where the setting's stiffest rate at rest
+    (joint and limit damping and a motor's back-EMF against the smallest joint
+    inertia, limit stiffness, torque, wheel damping) is beyond RK4's stability
+    at `sim_dt`, a `sim_dt` left at its default is divided into the fewest
+    equal substeps that RK4 steps stably (dt is unchanged); an explicit
+    `sim_dt` is honoured or refused with a ValueError that gives the largest
+    accepted one (`snake_env.physics.config.max_stable_sim_dt`). The physics (limits,
     integration, failures) is the same for every task.
 
     Link 1 is the link whose CM is (x, y) in eq. 1; link k+1 is attached to
@@ -141,7 +143,7 @@ class ForwardTask(Task):
     |-----------|---------|-------------|
     | `n_links` | 5 | number of links n >= 2 |
     | `frame_skip` | 4 | RK4 steps per env step |
-    | `sim_dt` | 0.01 | RK4 step (s); env dt = sim_dt * frame_skip = 0.04 s |
+    | `sim_dt` | 0.01 | RK4 step (s); env dt = sim_dt * frame_skip = 0.04 s; the default is divided into substeps where RK4 needs them |
     | `max_torque` | 1.0 | joint torque at action 1 (N m), paper Table III |
     | `exclude_current_positions_from_observation` | True | leave CM x, y out of obs |
     | `joint_damping` | 0.01 | viscous joint damping (N m s/rad) |
@@ -150,6 +152,8 @@ class ForwardTask(Task):
     | `joint_limit_stiffness` | 20.0 | least barrier stiffness beyond the limit (N m/rad); raised to 10 * max_torque |
     | `joint_limit_damping` | 0.2 | barrier damper at that least stiffness (N m s/rad) |
     | `paper_model` | False | True: joint_damping = wheel_damping = 0, no limits (the paper's model) |
+    | `actuator` | "ideal" | joint motors: "ideal" torque sources, or a DC-motor preset "servo", "xh430_w350", "dc_motor" (`snake_env.physics.actuators`): the torque T_k = max_torque * a_k is a command, clipped to stall_torque (1 - phidot_k / no_load_speed) above and -stall_torque (1 + phidot_k / no_load_speed) below, then to +-torque_limit |
+    | `stall_torque`, `no_load_speed`, `torque_limit` | None | N m, rad/s, N m: override the preset's motor constants |
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
     | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
     | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |

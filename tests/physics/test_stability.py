@@ -174,7 +174,7 @@ def test_joint_limit_holds_at_the_largest_accepted_torque(sim_dt):
 
 def test_refused_setting_names_the_argument_and_the_allowed_range():
     with pytest.raises(ValueError, match=r"sim_dt must be in \(0, [0-9.e-]+\] s .* got 0.01"):
-        SnakeEnv(max_torque=100.0)
+        SnakeEnv(max_torque=100.0, sim_dt=0.01)  # explicit: honoured or refused
     with pytest.raises(ValueError, match=r"joint_limit must be .*<= 2.61799 \(rad, 150 deg at most"):
         SnakeEnv(joint_limit=3.0)
     with pytest.raises(ValueError, match="integrator must be one of"):
@@ -185,12 +185,36 @@ def test_refused_setting_names_the_argument_and_the_allowed_range():
         SnakeEnv(max_refinements=13)
     # the bound in the message is accepted, just above it is not
     with pytest.raises(ValueError) as exc:
-        SnakeEnv(max_torque=100.0)
+        SnakeEnv(max_torque=100.0, sim_dt=0.01)
     bound = float(re.search(r"in \(0, ([0-9.e-]+)\] s", str(exc.value)).group(1))
     env = SnakeEnv(max_torque=100.0, sim_dt=bound * 0.999)
     assert max_stable_sim_dt(env.params, 100.0)[0] == pytest.approx(bound, rel=1e-2)
     with pytest.raises(ValueError, match="sim_dt"):
         SnakeEnv(max_torque=100.0, sim_dt=bound * 1.001)
+
+
+@pytest.mark.parametrize("kwargs", [dict(max_torque=100.0), dict(n_links=12, max_torque=20.0),
+                                    dict(length=0.05, mass=0.25, inertia=0.25 * 0.05 ** 2 / 12),
+                                    dict(actuator="xh430_w350")])
+def test_settings_rk4_cannot_step_at_the_default_sim_dt_run_in_substeps(kwargs):
+    """sim_dt left at its default is divided into the fewest stable substeps; dt stays 0.04 s, and the
+    steps are those of the explicit sim_dt = 0.01 / r with frame_skip 4 r, bit for bit."""
+    env = SnakeEnv(**kwargs)
+    r = env.params.substeps
+    bound = max_stable_sim_dt(env.params, env.max_torque)[0]
+    assert r == math.ceil(0.01 / bound) >= 2 and env.dt == 0.04 and env.sim_dt == 0.01
+    explicit = SnakeEnv(**kwargs, sim_dt=0.01 / r, frame_skip=4 * r)
+    assert explicit.params.substeps == 1
+    rng = np.random.default_rng(3)
+    obs, _ = env.reset(seed=3)
+    explicit.reset(seed=3)
+    for _ in range(100):
+        action = rng.uniform(-1, 1, env.action_space.shape)
+        obs, reward, _, truncated, info = env.step(action)
+        obs_e, reward_e, *_ = explicit.step(action)
+        assert np.array_equal(obs, obs_e) and reward == reward_e
+        assert np.all(np.isfinite(obs)) and not info["sim_failure"]
+        assert env._batch.aux[0, AUX_RESIDUAL] <= env.energy_tolerance  # the work-energy balance holds
 
 
 def test_failed_step_keeps_the_last_valid_state_with_reward_zero():
