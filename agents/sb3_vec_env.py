@@ -99,7 +99,7 @@ class SnakeSB3VecEnv(VecEnv):
             final_info = info["final_info"]
             final_values = {key: final_info[key] for key in self.step_info_keys}
             for i in np.flatnonzero(dones):
-                step_info = {key: final_values[key][i].item() for key in self.step_info_keys}
+                step_info = {key: _entry(final_values[key], i) for key in self.step_info_keys}
                 step_info["terminal_observation"] = info["final_obs"][i]
                 step_info["TimeLimit.truncated"] = time_limit[i]
                 self.reset_infos[i] = {key: infos[i][key] for key in RESET_INFO_KEYS}
@@ -113,7 +113,8 @@ class SnakeSB3VecEnv(VecEnv):
     def _split(self, info: dict, keys: Sequence[str]) -> list[dict[str, Any]]:
         """Gymnasium's batched info (arrays + masks) -> SB3's list of per-env dicts."""
         present = [key for key in keys if key in info]
-        columns = [info[key].tolist() for key in present]
+        # Python scalars, or one array per sub-env for a per-wheel entry (as DummyVecEnv gives them)
+        columns = [info[key].tolist() if info[key].ndim == 1 else list(info[key]) for key in present]
         masks = [info["_" + key] for key in present]
         if all(mask.all() for mask in masks):
             return [dict(zip(present, row)) for row in zip(*columns)] if present else [{} for _ in range(self.num_envs)]
@@ -143,3 +144,9 @@ class SnakeSB3VecEnv(VecEnv):
         if self.render_mode != "rgb_array":
             return [None for _ in range(self.num_envs)]
         return list(self.venv.render())
+
+
+def _entry(values: np.ndarray, i: int):
+    """Sub-env i's value of a batched info entry: a Python scalar, or an array (a per-wheel entry),
+    as the single env and SB3's DummyVecEnv give it."""
+    return values[i].item() if values.ndim == 1 else values[i]

@@ -102,7 +102,8 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
     results, paths = [], []
     for episode in range(episodes):
         obs, info = env.reset(seed=seed + episode)
-        recorder = EpisodeRecorder(base.task.episode_metrics, base.dt, base.task.weight(base.config), info)
+        recorder = EpisodeRecorder(base.task.episode_metrics, base.dt, base.task.weight(base.config), info,
+                                   wheel_load=base.config.wheel_load(), wheel_friction=base.config.wheel_friction)
         reset_controller()
         xy = [(info["x_position"], info["y_position"])]
         x0 = info["x_position"]
@@ -150,7 +151,8 @@ def print_task_metrics(task: str, metrics: dict) -> None:
     units = {"success_rate": "", "mean_cost_of_transport": "", "mean_final_goal_distance": " m",
              "mean_cross_track_error": " m", "mean_path_speed": " m/s", "mean_speed_error": " m/s",
              "mean_yaw_rate_error": " rad/s", "mean_dominant_joint_frequency": " Hz", "max_peak_joint_rate": " rad/s",
-             "mean_power": " W", "max_peak_power": " W"}
+             "mean_power": " W", "max_peak_power": " W", "mean_median_grip_demand": " m g",
+             "max_peak_grip_demand": " m g"}
     parts = [f"{key} = {'n/a' if value is None else f'{value:.4g}'}{units.get(key, '')}" for key, value in metrics.items()]
     print(f"{task}: " + ", ".join(parts))
 
@@ -232,7 +234,7 @@ def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=
     dt = float(env.unwrapped.dt)
     window = max(1, int(round(SPEED_WINDOW_S / dt)))
     speeds, total, steps = [], 0.0, 0
-    gait = GaitRecorder(dt)
+    gait = GaitRecorder(dt, env.unwrapped.config.wheel_load(), env.unwrapped.config.wheel_friction)
 
     def decorate(frame):
         if not hud:
@@ -245,7 +247,7 @@ def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=
     yield decorate(env.render())
     while True:
         obs, reward, terminated, truncated, info = env.step(act(obs))
-        gait.add(env.unwrapped.joint_state(), info["actuator_power"])
+        gait.add(env.unwrapped.joint_state(), info["actuator_power"], info["wheel_lateral_force"])
         total += float(reward)
         speeds.append(float(info["x_velocity"]))
         steps += 1

@@ -14,6 +14,11 @@ From the joint state sampled once per env step (dt s) over an episode of L steps
 - ``torque_sign_flip_share``: for each joint the share of consecutive steps whose held
   torques have opposite signs; the largest over the joints (1.0: bang-bang chatter).
 - ``mean_power``, ``peak_power`` (W): of ``info["actuator_power"]`` = sum_k |T_k dphi_k| / dt.
+- ``median_grip_demand``, ``peak_grip_demand``: the wheels' lateral force over their load,
+  |lambda_k| / (m_k g) (``info["wheel_lateral_force"]``, eq. 27's multipliers), over all
+  wheel-steps; ``outside_friction_cone_share``: the share of wheel-steps with |lambda_k| above
+  mu m_k g, mu the env's ``wheel_friction`` or, for unlimited grip, :data:`REFERENCE_FRICTION`.
+  A rubber wheel holds about its load (mu ~ 1); the no-slip model is exact only inside the cone.
 """
 
 from __future__ import annotations
@@ -22,10 +27,13 @@ import math
 
 import numpy as np
 
-GAIT_METRICS = ("dominant_joint_frequency", "peak_joint_rate", "torque_sign_flip_share", "mean_power", "peak_power")
+GAIT_METRICS = ("dominant_joint_frequency", "peak_joint_rate", "torque_sign_flip_share", "mean_power", "peak_power",
+                "median_grip_demand", "peak_grip_demand", "outside_friction_cone_share")
 # how the episode values of a gait metric combine over episodes in snake-eval's summary
 SUMMARY = {"dominant_joint_frequency": "mean", "peak_joint_rate": "max", "torque_sign_flip_share": "mean",
-           "mean_power": "mean", "peak_power": "max"}
+           "mean_power": "mean", "peak_power": "max", "median_grip_demand": "mean", "peak_grip_demand": "max",
+           "outside_friction_cone_share": "mean"}
+REFERENCE_FRICTION = 1.0  # mu of the cone share when the env's wheels grip without limit (rubber on a floor, ~1)
 MIN_STEPS = 4
 
 
@@ -54,17 +62,23 @@ def sign_flip_share(torques: np.ndarray) -> float:
 class GaitRecorder:
     """Joint angles, rates, torques and actuator power of one episode, one sample per env step."""
 
-    def __init__(self, dt: float):
+    def __init__(self, dt: float, wheel_load=None, wheel_friction: float | None = None):
+        """``wheel_load``: m_k g (N) of every wheel, for the grip metrics; ``wheel_friction``: the env's mu."""
         self.dt = float(dt)
-        self.angles, self.rates, self.torques, self.power = [], [], [], []
+        self.wheel_load = None if wheel_load is None else np.asarray(wheel_load, np.float64)
+        self.friction = REFERENCE_FRICTION if wheel_friction is None else float(wheel_friction)
+        self.angles, self.rates, self.torques, self.power, self.grip = [], [], [], [], []
 
-    def add(self, joint_state, actuator_power: float) -> None:
-        """``joint_state``: (phi (rad), phidot (rad/s), torque (N m)) after the step."""
+    def add(self, joint_state, actuator_power: float, wheel_lateral_force=None) -> None:
+        """``joint_state``: (phi (rad), phidot (rad/s), torque (N m)) after the step; ``wheel_lateral_force``
+        (N, per wheel) of the step when the recorder knows the wheel loads."""
         phi, phidot, torque = joint_state
         self.angles.append(np.array(phi, dtype=np.float64))
         self.rates.append(np.array(phidot, dtype=np.float64))
         self.torques.append(np.array(torque, dtype=np.float64))
         self.power.append(float(actuator_power))
+        if self.wheel_load is not None and wheel_lateral_force is not None:
+            self.grip.append(np.abs(np.asarray(wheel_lateral_force, np.float64)) / self.wheel_load)
 
     def metrics(self) -> dict:
         if not self.angles:
@@ -76,7 +90,15 @@ class GaitRecorder:
             "torque_sign_flip_share": sign_flip_share(np.asarray(self.torques)),
             "mean_power": float(np.mean(self.power)),
             "peak_power": float(np.max(self.power)),
+            **self._grip_metrics(),
         }
+
+    def _grip_metrics(self) -> dict:
+        if not self.grip:
+            return {key: math.nan for key in GAIT_METRICS[-3:]}
+        demand = np.concatenate(self.grip)  # |lambda| / (m g) of every wheel-step
+        return {"median_grip_demand": float(np.median(demand)), "peak_grip_demand": float(demand.max()),
+                "outside_friction_cone_share": float(np.mean(demand > self.friction))}
 
 
 def summarize_gait(results: list[dict]) -> dict:

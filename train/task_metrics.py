@@ -31,20 +31,21 @@ class EpisodeRecorder:
     """Collects the step info (and the joint state, for the gait metrics of
     :mod:`snake_env.train.gait_metrics`) of one episode; :meth:`metrics` reduces it."""
 
-    def __init__(self, episode_metrics: dict, dt: float, weight: float, reset_info: dict):
+    def __init__(self, episode_metrics: dict, dt: float, weight: float, reset_info: dict, wheel_load=None,
+                 wheel_friction: float | None = None):
         self.episode_metrics = dict(episode_metrics)  # the task class's {metric: (info key, reduction)}
         self.dt = float(dt)
         self.weight = float(weight)  # m_total g (N)
         self.positions = [(reset_info["x_position"], reset_info["y_position"])]
         self.energy = 0.0  # J of actuator work, sum |T dphi|
         self.values = {key: [] for key, _ in self.episode_metrics.values()}
-        self.gait = GaitRecorder(dt)
+        self.gait = GaitRecorder(dt, wheel_load, wheel_friction)
 
     def add(self, info: dict, joint_state=None) -> None:
         """One step's info; ``joint_state`` (phi, phidot, torque) after it adds the gait metrics."""
         self.positions.append((info["x_position"], info["y_position"]))
         if joint_state is not None:
-            self.gait.add(joint_state, info["actuator_power"])
+            self.gait.add(joint_state, info["actuator_power"], info.get("wheel_lateral_force"))
         self.energy += float(info["actuator_power"]) * self.dt
         for key in self.values:
             self.values[key].append(float(info[key]))

@@ -110,6 +110,21 @@ def derivatives(model, q, u, torques, dq, du):
     the continuous model. A joint limit <= 0 disables the limits (see the module
     doc for the barrier).
     """
+    return _kane_sweep(model, q, u, torques, dq, du, _NO_LINKS, False)
+
+
+# Per-link values _kane_sweep records when asked (row k of ``links``): the partial velocities and
+# velocities of eqs. 6-7, 12-14 (a1, a2 = dV_k/du, V_k, Vb_k its bias acceleration; b1, b2, W, Wb the
+# same for omega_k), the effective torque T_k of joint k (N m; actuator, damping, barrier) and
+# cos, sin of phi_k (the rotation from link k's frame to link k+1's).
+LINK_CHANNELS = 11
+_NO_LINKS = np.zeros((0, LINK_CHANNELS))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _kane_sweep(model, q, u, torques, dq, du, links, record):
+    """The O(n) sweep of :func:`derivatives`; with ``record`` (a constant, folded away when False)
+    it also fills ``links`` (n, LINK_CHANNELS) for :func:`wheel_lateral_forces`."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model
     n = m.shape[0]
     inv_room = inverse_room(limit)
@@ -130,6 +145,15 @@ def derivatives(model, q, u, torques, dq, du):
     r1 = 0.0
     power = 0.0
     for k in range(n):
+        if record:  # the link's channels (see LINK_CHANNELS)
+            links[k, 0] = a1
+            links[k, 1] = a2
+            links[k, 2] = V
+            links[k, 3] = Vb
+            links[k, 4] = b1
+            links[k, 5] = b2
+            links[k, 6] = W
+            links[k, 7] = Wb
         # eq. 9 and N omega, accumulated for link k
         mk = m[k]
         Ik = inertia[k]
@@ -177,6 +201,10 @@ def derivatives(model, q, u, torques, dq, du):
         r0 += T * (nb1 - b1)
         r1 += T * (nb2 - b2)
         power += T * phidot
+        if record:
+            links[k, 8] = T
+            links[k, 9] = C
+            links[k, 10] = S
         a1 = na1
         a2 = na2
         V = nV
@@ -191,6 +219,49 @@ def derivatives(model, q, u, torques, dq, du):
     dq[n] = u[0] * math.cos(q[0])
     dq[n + 1] = u[0] * math.sin(q[0])
     return power
+
+
+@njit(cache=True, nogil=True)
+def wheel_lateral_forces(model, q, u, torques, links, dq, du, out):
+    """The wheels' lateral forces lambda_k (N, along e_k_perp) of state (q, u) under the commanded
+    ``torques``: eq. 27's multipliers by the backward Newton-Euler sweep of
+    :mod:`snake_env.dynamics.wheel_reactions` (its numpy reference), with the env's effective joint
+    torques (motor, damping, barrier). ``links`` (n, LINK_CHANNELS), dq (n+2,), du (2,) are scratch;
+    writes out (n,)."""
+    m, h, inertia = model[0], model[1], model[2]
+    c_wheel = model[4]
+    n = m.shape[0]
+    _kane_sweep(model, q, u, torques, dq, du, links, True)
+    # F_k, the pin force of link k+1 on link k (N), in link k's frame (along e_k, along e_k_perp):
+    # e_k x F_k is then its second component; 0 beyond the tail
+    Fa = 0.0
+    Fp = 0.0
+    for k in range(n - 1, -1, -1):
+        V = links[k, 2]
+        W = links[k, 6]
+        Vdot = links[k, 0] * du[0] + links[k, 1] * du[1] + links[k, 3]
+        alpha = links[k, 4] * du[0] + links[k, 5] * du[1] + links[k, 7]
+        T_in = links[k - 1, 8] if k > 0 else 0.0
+        T_out = links[k, 8] if k < n - 1 else 0.0
+        lam = (inertia[k] * alpha - T_in + T_out) / h[k] - 2.0 * Fp + m[k] * V * W
+        out[k] = lam
+        # Newton: F_{k-1} = F_k + f_k e_k + lambda_k e_perp - m_k (Vdot_k e_k + V_k omega_k e_perp), in frame k
+        Fa += -c_wheel[k] * V - m[k] * Vdot
+        Fp += lam - m[k] * V * W
+        if k > 0:  # into link k-1's frame: e_k = C e_{k-1} + S e_{k-1}_perp, phi_{k-1} = theta_k - theta_{k-1}
+            C = links[k - 1, 9]
+            S = links[k - 1, 10]
+            Fa, Fp = Fa * C - Fp * S, Fa * S + Fp * C
+
+
+@njit(cache=True, nogil=True)
+def wheel_lateral_forces_batch(model, q, u, torques, out):
+    """:func:`wheel_lateral_forces` of every row: q (B, n+2), u (B, 2), torques (B, n-1), out (B, n)."""
+    links = np.empty((q.shape[1] - 2, LINK_CHANNELS))
+    dq = np.empty(q.shape[1])
+    du = np.empty(2)
+    for b in range(q.shape[0]):
+        wheel_lateral_forces(model, q[b], u[b], torques[b], links, dq, du, out[b])
 
 
 @njit(cache=True, nogil=True)

@@ -27,6 +27,9 @@ from snake_env.physics import AUX_FAILED
 
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
+# info of every step, an array (n,) per sub-env: the wheels' lateral forces (N, eq. 27's multipliers,
+# from the step's final state and held torques) and whether each exceeds its grip mu m_k g
+WHEEL_INFO_KEYS = ("wheel_lateral_force", "wheel_slip")
 
 
 def make_task_and_config(task, kwargs: dict) -> tuple[Task, PhysicsConfig]:
@@ -120,7 +123,9 @@ class SnakeBatch:
         self.physics_observation_space = physics_observation_space(n, self.params.include_position)
         self.single_observation_space = task.observation_space(config, self.physics_observation_space)
         energy = (ENERGY_KEY,) if task.energy_cost_weight else ()
-        self.step_info_keys = COMMON_STEP_INFO_KEYS + task.step_info_keys + energy
+        self.step_info_keys = COMMON_STEP_INFO_KEYS + WHEEL_INFO_KEYS + task.step_info_keys + energy
+        self.wheel_force = np.zeros((B, n))
+        self.grip = config.grip()
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
@@ -164,6 +169,9 @@ class SnakeBatch:
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         info, failures = common_step_info(ctx)
+        physics.wheel_lateral_forces(self.params, self.q, self.u, self.torques, self.wheel_force)
+        info["wheel_lateral_force"] = self.wheel_force.copy()
+        info["wheel_slip"] = np.abs(self.wheel_force) > self.grip
         info.update(task_info)
         if self.task.energy_cost_weight:
             # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default

@@ -108,8 +108,8 @@ class SnakeEnv(TaskEnvBase, gym.Env):
 
     @staticmethod
     def _first_info(info):
-        """Row 0 of a batched info (arrays of shape (1,)) as Python floats and bools."""
-        return {key: value.item() for key, value in info.items()}
+        """Row 0 of a batched info: Python floats and bools, arrays (e.g. per wheel) as arrays."""
+        return {key: value.item() if value.ndim == 1 else value[0] for key, value in info.items()}
 
     def _restart_trail(self):
         aux = self._batch.aux[0]

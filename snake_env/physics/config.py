@@ -63,7 +63,7 @@ MAX_REFINEMENTS_LIMIT = 12
 # RK4's stability interval is about 2.79 on the negative real axis and 2.83 on the
 # imaginary axis; sim_dt must keep the stiffest rate of the setting inside it with margin.
 RK4_STABLE_RATE_STEP = 2.5
-GRAVITY = 9.81  # m/s^2, for the cost of transport only (the snake moves on a plane)
+GRAVITY = 9.81  # m/s^2: the cost of transport and the wheels' normal load m_k g (the snake moves on a plane)
 
 
 @dataclass(frozen=True)
@@ -105,6 +105,9 @@ class PhysicsConfig:
                                      maximum=1.0, doc="tolerance of RK4's embedded local-error estimate per substep")
     max_refinements: int = setting(DEFAULT_MAX_REFINEMENTS, "substep halvings", "int", minimum=0, strict=False,
                                    maximum=MAX_REFINEMENTS_LIMIT, doc="substep halvings of a failing step")
+    wheel_friction: float | None = setting(None, "-", "optional_real", minimum=0.0,
+                                           doc="wheel-floor friction coefficient mu: a wheel slips when its lateral "
+                                               "force exceeds mu m_k g (info wheel_slip); None: unlimited grip")
     actuator: str = setting("ideal", "-", "choice", maximum=ACTUATORS,
                             doc='joint motors: "ideal" torque sources, or a DC-motor preset (physics.actuators)')
     stall_torque: float | None = setting(None, "N m", "optional_real", minimum=0.0,
@@ -143,6 +146,14 @@ class PhysicsConfig:
     def dt(self) -> float:
         """Duration of one env step (s)."""
         return self.sim_dt * self.frame_skip
+
+    def wheel_load(self) -> np.ndarray:
+        """m_k g (N) of every wheel (n,): its normal load on flat ground."""
+        return np.broadcast_to(np.asarray(self.mass, np.float64), (self.n_links,)) * GRAVITY
+
+    def grip(self) -> np.ndarray:
+        """mu m_k g (N) of every wheel (n,), the largest lateral force it holds; inf without ``wheel_friction``."""
+        return (math.inf if self.wheel_friction is None else self.wheel_friction) * self.wheel_load()
 
     def build(self) -> tuple[SnakeModel, PhysicsParams]:
         """The dynamics model and the compiled step's constants of these settings.

@@ -799,3 +799,10 @@ def observe(params: PhysicsParams, q, u):
     if q.ndim == 1:
         return obs[0], aux[0]
     return obs, aux
+
+
+def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out) -> None:
+    """The wheels' lateral forces (N) of states q (B, n+2), u (B, 2) under the commanded torques
+    (B, n-1) (N m) into out (B, n): eq. 27's multipliers by the compiled O(n) backward sweep
+    (``compiled.wheel_lateral_forces``), with the step's motor, damping and barrier."""
+    compiled.wheel_lateral_forces_batch(params.kernel_model, q, u, torques, out)

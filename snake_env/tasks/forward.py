@@ -131,7 +131,10 @@ class ForwardTask(Task):
     (m, whole CM), `x_velocity`, `y_velocity` (m/s, whole CM over the step),
     `kinetic_energy` (J, eq. 22), `power` (W, mean power of all loads over the
     step: actuators, damping, limits; dK/dt), `actuator_power` (W, sum_k
-    |T_k dphi_k| / dt, for the cost of transport), `sim_failure` (bool); here
+    |T_k dphi_k| / dt, for the cost of transport), `sim_failure` (bool),
+    `wheel_lateral_force` (n,) (N: the sideways force each wheel exerts on its
+    link, eq. 27's multiplier, from the step's final state and held torques) and
+    `wheel_slip` (n,) (bool: |force| > `wheel_friction` m_k g); here
     also `reward_forward`, `reward_ctrl`. Reset: `x_position`, `y_position`,
     `distance_from_origin`, `kinetic_energy`.
 
@@ -152,6 +155,7 @@ class ForwardTask(Task):
     | `joint_limit_stiffness` | 20.0 | least barrier stiffness beyond the limit (N m/rad); raised to 10 * max_torque |
     | `joint_limit_damping` | 0.2 | barrier damper at that least stiffness (N m s/rad) |
     | `paper_model` | False | True: joint_damping = wheel_damping = 0, no limits (the paper's model) |
+    | `wheel_friction` | None | mu of the wheels on the floor (> 0); None: unlimited grip. Reported only (info `wheel_slip`); the no-slip model still holds |
     | `actuator` | "ideal" | joint motors: "ideal" torque sources, or a DC-motor preset "servo", "xh430_w350", "dc_motor" (`snake_env.physics.actuators`): the torque T_k = max_torque * a_k is a command, clipped to stall_torque (1 - phidot_k / no_load_speed) above and -stall_torque (1 + phidot_k / no_load_speed) below, then to +-torque_limit |
     | `stall_torque`, `no_load_speed`, `torque_limit` | None | N m, rad/s, N m: override the preset's motor constants |
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |

@@ -72,7 +72,7 @@ def _rollout(env, seed, steps=60):
     for _ in range(steps):
         obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
         flat = np.concatenate([np.ravel(v) for v in obs.values()]) if isinstance(obs, dict) else obs
-        out.append(np.concatenate([flat, [reward, terminated, truncated], [float(v) for v in info.values()]]))
+        out.append(np.concatenate([flat, [reward, terminated, truncated], np.concatenate([np.ravel(v).astype(float) for v in info.values()])]))
         if terminated or truncated:
             break
     return np.concatenate(out)
@@ -121,7 +121,7 @@ def test_vector_env_equals_single_envs_step_by_step(env_id, kwargs):
             _assert_obs_equal(s_obs, _row(obs, i))
             assert s_reward == rewards[i] and s_term == terminated[i] and s_trunc == truncated[i]
             for key in vec.unwrapped.step_info_keys:
-                assert s_info[key] == info[key][i], key
+                assert np.array_equal(s_info[key], info[key][i]), key
         if (terminated | truncated).any():
             break
 

@@ -52,7 +52,7 @@ def test_num_envs_1_reproduces_the_single_env_through_autoresets(n):
         np.testing.assert_array_equal(obs1, obs2[0])
         assert (reward1, term1, trunc1) == (reward2[0], term2[0], trunc2[0])
         for key, value in info1.items():
-            assert info2["_" + key][0] and info2[key][0] == value, key
+            assert info2["_" + key][0] and np.array_equal(info2[key][0], value), key
         done = term1 or trunc1
 
 
@@ -200,4 +200,4 @@ def test_sync_vectorization_of_the_single_env_agrees():
         present = {k for k in info1 if not k.startswith("_") and info1["_" + k][0]}
         assert present == {k for k in info2 if not k.startswith("_")}  # reset steps carry only the reset info
         for key in present:
-            assert info1[key][0] == info2[key][0], key
+            assert np.array_equal(info1[key][0], info2[key][0]), key

@@ -69,9 +69,10 @@ def test_serpenoid_gait_metrics_match_its_parameters_and_the_state(tmp_path):
     base = env.unwrapped
     controller = SerpenoidController(params, 5, base.max_torque, base.dt)
     obs, _ = env.reset(seed=0)
-    peak, signs = 0.0, []
+    peak, signs, demand = 0.0, [], []
     for _ in range(steps):
-        obs, *_ = env.step(controller.act(obs))
+        obs, _, _, _, info = env.step(controller.act(obs))
+        demand.append(np.abs(info["wheel_lateral_force"]) / (base.mass * 9.81))
         q, u = base.state
         _, omega = base.model.link_velocities(q, u)
         peak = max(peak, float(np.max(np.abs(np.diff(omega)))))
@@ -80,3 +81,7 @@ def test_serpenoid_gait_metrics_match_its_parameters_and_the_state(tmp_path):
     flips = (np.asarray(signs)[1:] * np.asarray(signs)[:-1] < 0).mean(axis=0).max()
     assert episode["torque_sign_flip_share"] == pytest.approx(flips)
     assert 0.0 < episode["torque_sign_flip_share"] < 0.5  # a 4 Hz gait flips each torque twice a period
+    # grip: |lambda| / (m g) over all wheel-steps; the searched gait leaves mu = 1's cone often (74 % measured)
+    assert episode["median_grip_demand"] == pytest.approx(np.median(demand), rel=1e-12)
+    assert episode["outside_friction_cone_share"] == pytest.approx(np.mean(np.asarray(demand) > 1.0))
+    assert 0.3 < episode["outside_friction_cone_share"] < 1.0

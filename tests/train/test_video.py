@@ -31,8 +31,8 @@ def test_gif_frame_count_and_hud(tmp_path):
     # (panel top left, scale bar bottom left); elsewhere only palette rounding remains
     diff = np.abs(a.astype(float) - b.astype(float)).mean(axis=(0, 3))
     assert diff[:40, :100].mean() > 30 and diff[-30:, :60].mean() > 30
-    # the panel holds 8 lines (time, speed, distance, return and the four gait metrics): ~170 px
-    assert diff[200:-60, :].mean() < 3 and diff[:, 300:].mean() < 3
+    # the panel holds 9 lines (time, speed, distance, return and five gait metrics): ~190 px
+    assert diff[220:-60, :].mean() < 3 and diff[:, 300:].mean() < 3
 
 
 def test_mp4_frame_count(tmp_path):

@@ -1,0 +1,53 @@
+"""info["wheel_lateral_force"]: the compiled backward sweep at the step's final state and held torques
+equals eq. 27's multipliers (Lagrange and Newton–Euler) while no joint limit acts; wheel_slip compares it
+with mu m_k g; the single and the vector env report the same forces."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from snake_env.dynamics import lagrange, newton_euler
+from snake_env.envs import SnakeEnv
+from snake_env.physics import GRAVITY
+
+
+@pytest.mark.parametrize("n_links", [3, 5, 12])
+def test_reported_forces_are_the_multipliers_of_eq_27(n_links):
+    env = SnakeEnv(n_links=n_links, wheel_friction=0.8)
+    model, limit = env.unwrapped.model, env.unwrapped.joint_limit
+    env.reset(seed=1)
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(60):
+        action = rng.uniform(-0.5, 0.5, n_links - 1)
+        _, _, _, _, info = env.step(action)
+        q, u = env.state
+        if np.any(np.abs(np.diff(q[:n_links])) >= limit):
+            continue  # the barrier acts: not in the dynamics package's formulations
+        qdot = lagrange.consistent_qdot(model, q, u)
+        for formulation in (lagrange, newton_euler):
+            _, reference = formulation.qddot(model, q, qdot, action * env.max_torque, with_multipliers=True)
+            scale = np.max(np.abs(reference)) + 1.0
+            assert np.max(np.abs(info["wheel_lateral_force"] - reference)) / scale < 1e-9
+        load = np.broadcast_to(env.mass, (n_links,)) * GRAVITY
+        np.testing.assert_array_equal(info["wheel_slip"], np.abs(info["wheel_lateral_force"]) > 0.8 * load)
+        checked += 1
+    assert checked >= 30
+
+
+def test_vector_env_reports_the_single_envs_forces_and_unlimited_grip_never_slips():
+    """num_envs=1 reproduces the single env (same seed), per-wheel info included."""
+    vec = gym.make_vec("snake_env/Snake5-v2", num_envs=1, vectorization_mode="vector_entry_point")
+    single = gym.make("snake_env/Snake5-v2")
+    vec.reset(seed=7)
+    single.reset(seed=7)
+    for action in np.random.default_rng(0).uniform(-1, 1, (40, 1, 4)):
+        _, _, _, _, info = vec.step(action)
+        assert info["wheel_lateral_force"].shape == (1, 5) and not info["wheel_slip"].any()
+        assert np.array_equal(single.step(action[0])[4]["wheel_lateral_force"], info["wheel_lateral_force"][0])
+
+
+def test_bad_friction_is_a_one_line_error():
+    for value in (0.0, -1.0, float("inf")):
+        with pytest.raises(ValueError, match="wheel_friction must be a finite number > 0"):
+            SnakeEnv(wheel_friction=value)
