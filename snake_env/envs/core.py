@@ -115,6 +115,7 @@ class SnakeBatch:
     """State (B rows) of snakes doing one task, stepped by one compiled call."""
 
     def __init__(self, task: Task, config: PhysicsConfig, num_envs: int):
+        physics.stepping.announce_compile()  # never a silent first-run wait
         self.task = task
         self.config = config
         self.model, self.params = config.build()

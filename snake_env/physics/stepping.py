@@ -60,6 +60,7 @@ after thousands of turns) is stepped by the per-snake kernel
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from functools import cached_property
 from typing import NamedTuple
@@ -806,3 +807,29 @@ def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out) -> None:
     (B, n-1) (N m) into out (B, n): eq. 27's multipliers by the compiled O(n) backward sweep
     (``compiled.wheel_lateral_forces``), with the step's motor, damping and barrier."""
     compiled.wheel_lateral_forces_batch(params.kernel_model, q, u, torques, out)
+
+
+# Said once per process on stderr before the first step compiles the kernels: measured 84-92 s from
+# an empty cache on the 2-core machine (docs/benchmarks.md); numba caches the result on disk.
+COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 1.5 min on a 2-core "
+                  "machine; cached afterwards)")
+_compile_announced = False
+
+
+def kernels_cached() -> bool:
+    """Whether numba's on-disk cache holds compiled code of the current step kernel (the lane kernel every
+    batch steps with) for this source file; False when it cannot tell."""
+    try:
+        return bool(_step_lanes._cache._cache_file._load_index())
+    except Exception:  # numba internals moved: say nothing rather than something wrong
+        return True
+
+
+def announce_compile() -> bool:
+    """Print :data:`COMPILE_NOTICE` to stderr once per process if the kernels are not cached yet; True if printed."""
+    global _compile_announced
+    if _compile_announced or _step_lanes.signatures or kernels_cached():
+        return False
+    _compile_announced = True
+    print(COMPILE_NOTICE, file=sys.stderr, flush=True)
+    return True
