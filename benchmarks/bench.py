@@ -53,6 +53,7 @@ class BenchConfig:
     memory_num_envs: int = 4096
     memory_steps: int = 50
     startup_runs: int = 3
+    startup_cold: bool = True  # the first start-up run from an empty numba cache (compiles everything)
 
 
 FULL = BenchConfig()
@@ -61,7 +62,7 @@ QUICK = BenchConfig(
     vector_num_envs=(4, 16), vector_sample_time=0.05, vector_rounds=2,
     udot_n=(10, 20, 40), udot_min_time=0.002, udot_max_call_time=0.05,
     ppo_num_envs=4, ppo_rounds=1, ppo_kwargs={"n_steps": 64, "batch_size": 32, "n_epochs": 1},
-    memory_num_envs=64, memory_steps=5, startup_runs=1,
+    memory_num_envs=64, memory_steps=5, startup_runs=1, startup_cold=False,
 )
 
 
@@ -123,7 +124,7 @@ def run_sections(config: BenchConfig, sections, log=print) -> dict:
         attempt("memory", lambda: bench_sections.vector_env_memory(
             config.memory_links, config.memory_num_envs, config.memory_steps))
     if "startup" in sections:
-        attempt("startup", lambda: bench_sections.startup_time(5, config.startup_runs))
+        attempt("startup", lambda: bench_sections.startup_time(5, config.startup_runs, config.startup_cold))
     return results
 
 

@@ -244,9 +244,9 @@ def ppo_speeds(snake_links: int, snake_num_envs: int, iterations: int, rounds: i
 
 
 # --------------------------------------------------------------------------- subprocess measurements
-def _run_child(code: str, timeout: float) -> dict:
-    """Run ``code`` in a fresh interpreter; it prints one JSON line last."""
-    env = dict(os.environ)
+def _run_child(code: str, timeout: float, extra_env: dict | None = None) -> dict:
+    """Run ``code`` in a fresh interpreter (with ``extra_env`` set); it prints one JSON line last."""
+    env = {**os.environ, **(extra_env or {})}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout, env=env)
     if proc.returncode != 0:
         raise RuntimeError(f"child process failed ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
@@ -293,28 +293,35 @@ env = gym.make("snake_env/Snake{n_links}-v2")
 env.reset(seed=0)
 env.step(env.action_space.sample())
 single = time.perf_counter() - start
-envs = gym.make_vec("snake_env/Snake{n_links}-v2", num_envs=8, vectorization_mode="vector_entry_point")
+envs = gym.make_vec("snake_env/Snake{n_links}-v2", num_envs=32, vectorization_mode="vector_entry_point")
 envs.reset(seed=0)
 envs.step(envs.action_space.sample())
 print(json.dumps({{"import_and_first_step_s": single, "plus_vector_first_step_s": time.perf_counter() - start}}))
 """
 
 
-def startup_time(n_links: int, runs: int) -> dict:
+def startup_time(n_links: int, runs: int, cold: bool = True) -> dict:
     """Seconds from a fresh interpreter to the first env step (imports, numba
-    cache loads, make, reset, step). The first run fills numba's on-disk cache
-    if it is empty; the later runs are the "once caches exist" figure."""
+    cache loads, make, reset, step) and then a first 32-env vector step. With
+    ``cold``, every run uses one new NUMBA_CACHE_DIR: the first run starts from an
+    empty cache (a new install's cold start, ``cold_start_s``), the later ones are
+    the "once caches exist" figure; without it the runs use the current cache."""
+    import tempfile
+
     code = STARTUP_CHILD.format(n_links=n_links)
     samples = []
     wall = []
-    for _ in range(runs):
-        start = time.perf_counter()
-        samples.append(_run_child(code, timeout=600))
-        wall.append(time.perf_counter() - start)
+    with tempfile.TemporaryDirectory(prefix="snake_bench_numba_") as cache:
+        extra_env = {"NUMBA_CACHE_DIR": cache} if cold else None
+        for _ in range(runs):
+            start = time.perf_counter()
+            samples.append(_run_child(code, timeout=900, extra_env=extra_env))
+            wall.append(time.perf_counter() - start)
     warm = samples[1:] if len(samples) > 1 else samples
     return {
         "env": snake_id(n_links),
         "first_run": samples[0],
+        "cold_start_s": samples[0]["plus_vector_first_step_s"] if cold else None,
         "import_and_first_step_s": min(s["import_and_first_step_s"] for s in warm),
         "process_wall_s": min(wall[1:] if len(wall) > 1 else wall),
         "samples": samples,
