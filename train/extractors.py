@@ -70,7 +70,7 @@ def goal_frame_kwargs(env_id: str, env_kwargs: dict) -> dict:
     """GoalFrameExtractor's keyword arguments for the env ``env_id``: its n and where phi starts,
     read as the goal_frame wrapper reads them."""
     import snake_env  # noqa: F401  (registers the ids)
-    from snake_env.wrappers import _goal_frame_geometry
+    from snake_env.wrappers.observation import _goal_frame_geometry
 
     env = gym.make(env_id, **env_kwargs)
     try:

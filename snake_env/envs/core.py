@@ -21,10 +21,8 @@ from snake_env.tasks import Task, task_class
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_reset_info, common_step_info
 
 from snake_env import physics
-from snake_env.physics import PhysicsConfig
+from snake_env.physics import AUX_FAILED, PhysicsConfig
 from snake_env.physics.settings import number, split_kwargs
-from snake_env.physics import AUX_FAILED
-
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
 # info of every step, an array (n,) per sub-env: the wheels' lateral forces (N, eq. 27's multipliers,

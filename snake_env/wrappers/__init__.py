@@ -25,9 +25,7 @@ from snake_env.controllers.cpg import CPG_PARAMETERS
 from snake_env.controllers.joint_pd import REFERENCE_RATES
 
 from .action import CPGAction, CPGActionVector, JointTargetAction, JointTargetActionVector
-# the goal-frame layout, read by snake_env.train.extractors (the goal_frame features extractor)
-from .observation import (GoalFrameObservation, GoalFrameObservationVector, PhaseObservation, PhaseObservationVector,
-                          _goal_frame_geometry, _with_goal_frame)
+from .observation import GoalFrameObservation, GoalFrameObservationVector, PhaseObservation, PhaseObservationVector
 from .parser import WRAPPERS, parse_env_wrapper, wrap_env, wrap_vector_env
 from .residual import (STEERING_ACTIONS, STEERING_BASELINES, SerpenoidResidualAction, SerpenoidResidualActionVector,
                        SteeringResidualAction, SteeringResidualActionVector)

@@ -16,7 +16,7 @@ REACH = "snake_env/SnakeReach8-v1"
 def test_goal_frame_extractor_equals_the_goal_frame_wrapper_also_for_relabelled_goals():
     """On a batch of 4 snakes after 40 random steps: the extractor's (ahead, left) equal what the goal_frame
     wrapper appends, and for another desired goal (a HER relabelling) they equal the wrapper's formula for it."""
-    from snake_env.wrappers import _goal_frame_geometry, _with_goal_frame
+    from snake_env.wrappers.observation import _goal_frame_geometry, _with_goal_frame
 
     spec = [{"steering_residual": {"baseline": "gait"}}]
     make = lambda: gym.make_vec(REACH, num_envs=4, vectorization_mode="vector_entry_point")  # noqa: E731
