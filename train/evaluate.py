@@ -112,7 +112,7 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
             obs, reward, terminated, truncated, info = env.step(act(obs))
             total += float(reward)
             speeds.append(float(info["x_velocity"]))
-            recorder.add(info, base.joint_state())
+            recorder.add({**info, "wheel_lateral_force": base.wheel_lateral_forces()}, base.joint_state())
             xy.append((info["x_position"], info["y_position"]))
             steps += 1
             if terminated or truncated or (max_steps is not None and steps >= max_steps):
@@ -247,7 +247,7 @@ def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=
     yield decorate(env.render())
     while True:
         obs, reward, terminated, truncated, info = env.step(act(obs))
-        gait.add(env.unwrapped.joint_state(), info["actuator_power"], info["wheel_lateral_force"])
+        gait.add(env.unwrapped.joint_state(), info["actuator_power"], env.unwrapped.wheel_lateral_forces())
         total += float(reward)
         speeds.append(float(info["x_velocity"]))
         steps += 1

@@ -64,6 +64,12 @@ class SnakeEnv(TaskEnvBase, gym.Env):
         return (np.diff(q[:n]), self._batch.physics_obs[0, start:start + n - 1].copy(),
                 self._batch.torques[0].copy())
 
+    def wheel_lateral_forces(self) -> np.ndarray:
+        """The sideways force (N) each wheel exerts on its link, (n,): eq. 27's multipliers of the current
+        state under the torques held over the last step (0 before the first); in ``info`` at every step
+        when ``wheel_friction`` is given."""
+        return self._batch.wheel_lateral_forces()[0]
+
     def set_state(self, q, u):
         """Put the snake in state (q, u) (the task state is kept); return the new observation."""
         self._batch.set_state(np.asarray(q, np.float64)[None], np.asarray(u, np.float64)[None])

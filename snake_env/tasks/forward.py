@@ -131,10 +131,11 @@ class ForwardTask(Task):
     (m, whole CM), `x_velocity`, `y_velocity` (m/s, whole CM over the step),
     `kinetic_energy` (J, eq. 22), `power` (W, mean power of all loads over the
     step: actuators, damping, limits; dK/dt), `actuator_power` (W, sum_k
-    |T_k dphi_k| / dt, for the cost of transport), `sim_failure` (bool),
-    `wheel_lateral_force` (n,) (N: the sideways force each wheel exerts on its
-    link, eq. 27's multiplier, from the step's final state and held torques) and
-    `wheel_slip` (n,) (bool: |force| > `wheel_friction` m_k g); here
+    |T_k dphi_k| / dt, for the cost of transport), `sim_failure` (bool); with
+    `wheel_friction` given, `wheel_lateral_force` (n,) (N: the sideways force
+    each wheel exerts on its link, eq. 27's multiplier, from the step's final
+    state and held torques; `env.unwrapped.wheel_lateral_forces()` without it)
+    and `wheel_slip` (n,) (bool: |force| > `wheel_friction` m_k g); here
     also `reward_forward`, `reward_ctrl`. Reset: `x_position`, `y_position`,
     `distance_from_origin`, `kinetic_energy`.
 

@@ -223,6 +223,9 @@ def test_info_keys():
     assert set(reset_info) == {"x_position", "y_position", "distance_from_origin", "kinetic_energy"}
     info = env.step(env.action_space.sample())[4]
     assert set(info) == {"x_position", "y_position", "distance_from_origin", "x_velocity", "y_velocity",
-                         "reward_forward", "reward_ctrl", "kinetic_energy", "power", "actuator_power", "sim_failure",
-                         "wheel_lateral_force", "wheel_slip"}
+                         "reward_forward", "reward_ctrl", "kinetic_energy", "power", "actuator_power", "sim_failure"}
+    gripped = gym.make("snake_env/Snake5-v2", wheel_friction=1.0)  # the grip modelled: the wheels' forces too
+    gripped.reset(seed=0)
+    info = gripped.step(gripped.action_space.sample())[4]
     assert info["wheel_lateral_force"].shape == info["wheel_slip"].shape == (5,)
+    assert np.array_equal(info["wheel_lateral_force"], gripped.unwrapped.wheel_lateral_forces())

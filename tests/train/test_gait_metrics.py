@@ -72,7 +72,7 @@ def test_serpenoid_gait_metrics_match_its_parameters_and_the_state(tmp_path):
     peak, signs, demand = 0.0, [], []
     for _ in range(steps):
         obs, _, _, _, info = env.step(controller.act(obs))
-        demand.append(np.abs(info["wheel_lateral_force"]) / (base.mass * 9.81))
+        demand.append(np.abs(base.wheel_lateral_forces()) / (base.mass * 9.81))
         q, u = base.state
         _, omega = base.model.link_velocities(q, u)
         peak = max(peak, float(np.max(np.abs(np.diff(omega)))))
