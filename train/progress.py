@@ -77,7 +77,8 @@ class LogProgress(BaseCallback):
                 self._speed_count += 1
         now = self.clock()
         steps = self.model.num_timesteps
-        if steps >= self._next_steps or now - self._last_time >= self.every_seconds:
+        # past the requested total (PPO's last rollout overshoots it) only the end of training reports
+        if steps < self.total and (steps >= self._next_steps or now - self._last_time >= self.every_seconds):
             self.report(steps, now)
             self._next_steps = (steps // self.every_steps + 1) * self.every_steps
         return True

@@ -63,3 +63,24 @@ def test_time_based_lines():
     assert "ep return 3 " in lines[0] and "speed 1 m/s" in lines[0]
     with pytest.raises(ValueError):
         LogProgress(10, every_percent=0)
+
+
+def test_an_overshooting_last_rollout_gives_one_final_line():
+    """Past the requested total (PPO's last rollout overshoots a small total) only the end reports."""
+
+    class FakeModel:
+        num_timesteps = 0
+        ep_info_buffer = []
+
+    ticks = iter(range(1000))
+    stream = io.StringIO()
+    callback = LogProgress(100, every_percent=10, every_seconds=1e9, stream=stream, clock=lambda: next(ticks))
+    callback.init_callback(FakeModel())
+    callback.on_training_start({}, {})
+    for step in range(1, 21):  # 8 steps a call, up to 160 of 100
+        FakeModel.num_timesteps = step * 8
+        callback.update_locals({"infos": []})
+        callback.on_step()
+    callback.on_training_end()
+    steps = [int(m.group(2)) for m in map(LINE.match, stream.getvalue().splitlines()) if m]
+    assert [s for s in steps if s >= 100] == [160] and steps == sorted(steps)
