@@ -72,8 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--env-kwarg", dest="env_kwargs", action="append", default=[], metavar="KEY=VALUE",
                         help="set an env kwarg (value read as YAML), e.g. path_type=circle; repeatable; "
                              "overrides the run's env_kwargs")
-    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline, whose controllers run the searched gaits (default ./configs/serpenoid.yaml if it "
-                             "exists, else the shipped one)")
+    parser.add_argument("--serpenoid-config", help="gait YAML for --baseline, whose controllers run the searched "
+                                                   "gaits (default ./configs/serpenoid.yaml if it exists, else the "
+                                                   "shipped one)")
     return parser
 
 
@@ -94,6 +95,13 @@ def make_env(env_id: str, env_kwargs: dict, render: bool, env_wrapper=None):
         raise EvalError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
 
 
+def wheel_forces(base, info: dict):
+    """The wheels' lateral forces (N) of the step: the info's when the env reports them (``wheel_friction``
+    given), else computed once by the env."""
+    forces = info.get("wheel_lateral_force")
+    return base.wheel_lateral_forces() if forces is None else forces
+
+
 def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps=None):
     """Roll out ``episodes`` episodes (seed + k); return (per-episode dicts, CM paths)."""
     from snake_env.train.task_metrics import EpisodeRecorder
@@ -112,7 +120,7 @@ def run_episodes(env, act, reset_controller, episodes: int, seed: int, max_steps
             obs, reward, terminated, truncated, info = env.step(act(obs))
             total += float(reward)
             speeds.append(float(info["x_velocity"]))
-            recorder.add({**info, "wheel_lateral_force": base.wheel_lateral_forces()}, base.joint_state())
+            recorder.add(info, base.joint_state(), wheel_forces(base, info))
             xy.append((info["x_position"], info["y_position"]))
             steps += 1
             if terminated or truncated or (max_steps is not None and steps >= max_steps):
@@ -247,7 +255,7 @@ def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=
     yield decorate(env.render())
     while True:
         obs, reward, terminated, truncated, info = env.step(act(obs))
-        gait.add(env.unwrapped.joint_state(), info["actuator_power"], env.unwrapped.wheel_lateral_forces())
+        gait.add(env.unwrapped.joint_state(), info["actuator_power"], wheel_forces(env.unwrapped, info))
         total += float(reward)
         speeds.append(float(info["x_velocity"]))
         steps += 1
@@ -468,16 +476,16 @@ def evaluate(args) -> dict:
     env = make_env(env_id, env_kwargs, render=False, env_wrapper=meta.get("env_wrapper"))
     try:
         results, paths = run_episodes(env, act, reset, args.episodes, args.seed, args.max_steps)
-        task = env.unwrapped.task
+        task_class = type(env.unwrapped.task)
     finally:
         env.close()
     from snake_env.train.gait_metrics import summarize_gait
     from snake_env.train.task_metrics import summarize_task
 
     summary = summarize(results)
-    task_summary = summarize_task(task.episode_metrics, results)
+    task_summary = summarize_task(task_class.episode_metrics, results)
     gait_summary = summarize_gait(results)
-    task = task.name
+    task = task_class.name
     print_table(title, results, summary)
     print_task_metrics(f"task {task}", task_summary)
     print_task_metrics("gait", gait_summary)

@@ -41,11 +41,12 @@ class EpisodeRecorder:
         self.values = {key: [] for key, _ in self.episode_metrics.values()}
         self.gait = GaitRecorder(dt, wheel_load, wheel_friction)
 
-    def add(self, info: dict, joint_state=None) -> None:
-        """One step's info; ``joint_state`` (phi, phidot, torque) after it adds the gait metrics."""
+    def add(self, info: dict, joint_state=None, wheel_lateral_force=None) -> None:
+        """One step's info; ``joint_state`` (phi, phidot, torque) after it adds the gait metrics and
+        ``wheel_lateral_force`` (N, per wheel) the grip metrics."""
         self.positions.append((info["x_position"], info["y_position"]))
         if joint_state is not None:
-            self.gait.add(joint_state, info["actuator_power"], info.get("wheel_lateral_force"))
+            self.gait.add(joint_state, info["actuator_power"], wheel_lateral_force)
         self.energy += float(info["actuator_power"]) * self.dt
         for key in self.values:
             self.values[key].append(float(info[key]))

@@ -16,8 +16,8 @@ band, a joint driven by the full command settles at omega_0, and a faster one
 is braked, so the torque-speed envelope bounds the joint rates a policy can use.
 
 ``motor_torque`` is compiled inline into the derivative kernels, evaluated at
-every RK4 stage (the envelope depends on the state); ``no_load_speed`` = inf
-(the ideal torque source) leaves the command untouched except for the limit.
+every RK4 stage (the envelope depends on the state); the ideal torque source
+(``torque_limit`` = inf in the kernels' model) skips it altogether.
 """
 
 from __future__ import annotations

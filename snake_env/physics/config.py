@@ -28,13 +28,13 @@ from .actuators import resolve as resolve_actuator
 from .settings import check_fields, setting
 from .stepping import PhysicsParams
 
-# Defaults (units in the field docs). One env step = sim_dt * frame_skip = 0.04 s, like Swimmer-v5.
 class _DefaultSimDt(float):
     """The default sim_dt's type: a float that tells PhysicsConfig it was not given, so that it may be
     divided into substeps where RK4 needs them (a sim_dt passed explicitly, even 0.01, is honoured
     or refused)."""
 
 
+# Defaults (units in the field docs). One env step = sim_dt * frame_skip = 0.04 s, like Swimmer-v5.
 DEFAULT_SIM_DT = _DefaultSimDt(0.01)  # s, one RK4 step
 DEFAULT_FRAME_SKIP = 4  # RK4 steps per env step
 DEFAULT_MAX_TORQUE = 1.0  # N m, the paper's Table III torque amplitude
@@ -158,8 +158,9 @@ class PhysicsConfig:
     def build(self) -> tuple[SnakeModel, PhysicsParams]:
         """The dynamics model and the compiled step's constants of these settings.
 
-        Settings that no refinement makes sound are refused here: sim_dt above the RK4
-        stability limit of the setting's stiffest rate (see :func:`stiffest_rates`)."""
+        Where the setting's stiffest rate (see :func:`stiffest_rates`) puts sim_dt above RK4's
+        stability limit, a default sim_dt is divided into the fewest stable substeps
+        (``PhysicsParams.substeps``) and an explicit one is refused."""
         model = SnakeModel(n_links=self.n_links, mass=self.mass, length=self.length, inertia=self.inertia,
                            joint_damping=self.joint_damping, wheel_damping=self.wheel_damping)
         m, h, inertia, c_joint, c_wheel = model.parameters(np.float64)
