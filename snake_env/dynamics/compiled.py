@@ -78,20 +78,25 @@ class KernelModel(NamedTuple):
     stall_torque: float = math.inf  # N m
     inverse_no_load_speed: float = 0.0  # s/rad: 1 / omega_0; 0 for no speed envelope
     torque_limit: float = math.inf  # N m
+    # the wheels' grip mu m_k g (N), (n,): the traction limit of the module doc; empty (0,): unlimited grip
+    wheel_grip: np.ndarray = np.empty(0)
 
 
 def kernel_model(mass, half_length, inertia, joint_damping, wheel_damping, joint_limit=0.0, limit_stiffness=0.0,
-                 limit_damping=0.0, stall_torque=math.inf, inverse_no_load_speed=0.0, torque_limit=math.inf) -> tuple:
+                 limit_damping=0.0, stall_torque=math.inf, inverse_no_load_speed=0.0, torque_limit=math.inf,
+                 wheel_grip=None) -> tuple:
     """The ``model`` argument of the kernels (see :class:`KernelModel`): its fields
     as a plain tuple, arrays as float64 C-contiguous (the given arrays themselves
     when they already are) and scalars as Python floats, so that every caller
-    reuses one compiled (and cached) specialisation. The defaults: no joint limits, ideal torque sources."""
+    reuses one compiled (and cached) specialisation. The defaults: no joint limits, ideal torque sources,
+    unlimited grip."""
     def array(a):
         return np.ascontiguousarray(a, dtype=np.float64)
 
     return tuple(KernelModel(array(mass), array(half_length), array(inertia), array(joint_damping),
                              array(wheel_damping), float(joint_limit), float(limit_stiffness), float(limit_damping),
-                             float(stall_torque), float(inverse_no_load_speed), float(torque_limit)))
+                             float(stall_torque), float(inverse_no_load_speed), float(torque_limit),
+                             array(np.empty(0) if wheel_grip is None else wheel_grip)))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -102,30 +107,37 @@ def inverse_room(limit):
 
 
 @njit(cache=True, nogil=True)
-def derivatives(model, q, u, torques, dq, du):
+def derivatives(model, q, u, torques, dq, du, scale=1.0):
     """Write qdot into dq (n+2,), udot into du (2,); return dK/dt (W).
 
     ``model``: :func:`kernel_model`'s tuple. The returned power is that of every
     load (actuators, damping, limits), so K(t) minus its integral is constant in
     the continuous model. A joint limit <= 0 disables the limits (see the module
-    doc for the barrier).
+    doc for the barrier). ``scale``: the traction limit's factor on the motors'
+    torques (see :func:`traction_derivatives`); 1 leaves them as they are, bit for bit.
     """
-    return _kane_sweep(model, q, u, torques, dq, du, _NO_LINKS, False)
+    return _kane_sweep(model, q, u, torques, dq, du, _NO_LINKS, False, scale, False)[0]
 
 
 # Per-link values _kane_sweep records when asked (row k of ``links``): the partial velocities and
 # velocities of eqs. 6-7, 12-14 (a1, a2 = dV_k/du, V_k, Vb_k its bias acceleration; b1, b2, W, Wb the
 # same for omega_k), the effective torque T_k of joint k (N m; actuator, damping, barrier) and
-# cos, sin of phi_k (the rotation from link k's frame to link k+1's).
-LINK_CHANNELS = 11
+# cos, sin of phi_k (the rotation from link k's frame to link k+1's), the motor's torque A_k (N m,
+# before the traction scale) and scratch for the traction limit's two backward sweeps.
+LINK_CHANNELS = 14
 _NO_LINKS = np.zeros((0, LINK_CHANNELS))
+_NO_DU = np.zeros(0)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _kane_sweep(model, q, u, torques, dq, du, links, record):
+def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
     """The O(n) sweep of :func:`derivatives`; with ``record`` (a constant, folded away when False)
-    it also fills ``links`` (n, LINK_CHANNELS) for :func:`wheel_lateral_forces`."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model
+    it also fills ``links`` (n, LINK_CHANNELS) for :func:`wheel_lateral_forces`.
+
+    Returns (power (W), M00, M01, M11, ra0, ra1, pa, r0, r1). The motors' torques A_k enter scaled by
+    ``scale``; with ``split`` (a constant) also their generalized forces (ra0, ra1) and power pa
+    alone, so that the caller can add them at another scale (eq. 8 is linear in the torques)."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model[:11]
     n = m.shape[0]
     inv_room = inverse_room(limit)
     motor = t_max < math.inf
@@ -144,6 +156,9 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record):
     r0 = 0.0
     r1 = 0.0
     power = 0.0
+    ra0 = 0.0
+    ra1 = 0.0
+    pa = 0.0
     for k in range(n):
         if record:  # the link's channels (see LINK_CHANNELS)
             links[k, 0] = a1
@@ -190,6 +205,8 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record):
         T = torques[k]
         if motor:  # the command clipped to the motor's torque-speed band and current limit
             T = motor_torque(T, phidot, stall, inv_w0, t_max)
+        A = T
+        T = scale * A
         T -= c_joint[k] * phidot
         if limit > 0.0:
             if phi > limit or phi < -limit:
@@ -201,10 +218,15 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record):
         r0 += T * (nb1 - b1)
         r1 += T * (nb2 - b2)
         power += T * phidot
+        if split:
+            ra0 += A * (nb1 - b1)
+            ra1 += A * (nb2 - b2)
+            pa += A * phidot
         if record:
             links[k, 8] = T
             links[k, 9] = C
             links[k, 10] = S
+            links[k, 11] = A
         a1 = na1
         a2 = na2
         V = nV
@@ -218,7 +240,99 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record):
     du[1] = (M00 * r1 - M01 * r0) / det
     dq[n] = u[0] * math.cos(q[0])
     dq[n + 1] = u[0] * math.sin(q[0])
-    return power
+    return power, M00, M01, M11, ra0, ra1, pa, r0, r1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def grip_room(lam0, lamg, grip):
+    """The largest traction scale s >= 0 that keeps wheel k's lateral force lam0 + s lamg (N) within
+    max(grip, |lam0|) (N): the cone when the torques alone would leave it, no further out than the
+    motion alone takes it otherwise; inf where the torques do not load the wheel (lamg = 0)."""
+    bound = grip if grip > abs(lam0) else abs(lam0)
+    if lamg > 0.0:
+        return (bound - lam0) / lamg
+    if lamg < 0.0:
+        return (bound + lam0) / -lamg
+    return math.inf
+
+
+@njit(cache=True, nogil=True)
+def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0, du_old=_NO_DU):
+    """:func:`derivatives` under the traction limit; returns (power (W), the scale s in [0, 1]).
+
+    The wheels' lateral forces are affine in the motors' torques A at a given state,
+    lambda = lambda_0 + s G A (eq. 27's multipliers; lambda_0 that of the motion, the damping and
+    the barrier alone). The motors' torques are scaled by the largest s <= 1 that keeps every
+    wheel within its grip mu m_k g (model field ``wheel_grip``), or, where the motion alone takes
+    a wheel past it, that adds no excess (:func:`grip_room`): torque that would make a wheel slip
+    buys no acceleration. One sweep at s = 0 with the motors' share kept apart gives udot at any s
+    (eq. 8 is linear in the torques); one backward Newton-Euler sweep (as in
+    :func:`wheel_lateral_forces`) gives lambda_0 and G A together. Writes dq, du at s and
+    lam (n,) = lambda at s (N); ``links`` (n, LINK_CHANNELS) is scratch. ``du_old`` (2,), if given,
+    gets udot at ``old_scale`` from the same sweep: the error estimate of a substep compares its
+    last stage with f(y1) at the substep's own scale, since the jump of the held scale to the next
+    substep's is a change of the control, not an integration error.
+    """
+    m, h, inertia = model[0], model[1], model[2]
+    c_wheel = model[4]
+    grip = model[11]
+    n = m.shape[0]
+    power, M00, M01, M11, ra0, ra1, pa, r0, r1 = _kane_sweep(model, q, u, torques, dq, du, links, True, 0.0, True)
+    det = M00 * M11 - M01 * M01
+    g0 = (M11 * ra0 - M01 * ra1) / det
+    g1 = (M00 * ra1 - M01 * ra0) / det
+    du0 = du[0]
+    du1 = du[1]
+    # pin forces (along e_k, e_k_perp in link k's frame) of the two right-hand sides
+    Fa = 0.0
+    Fp = 0.0
+    Ga = 0.0
+    Gp = 0.0
+    scale = 1.0
+    for k in range(n - 1, -1, -1):
+        V = links[k, 2]
+        W = links[k, 6]
+        a1 = links[k, 0]
+        a2 = links[k, 1]
+        b1 = links[k, 4]
+        b2 = links[k, 5]
+        Vdot = a1 * du0 + a2 * du1 + links[k, 3]
+        alpha = b1 * du0 + b2 * du1 + links[k, 7]
+        Vdot_g = a1 * g0 + a2 * g1
+        alpha_g = b1 * g0 + b2 * g1
+        P_in = links[k - 1, 8] if k > 0 else 0.0
+        P_out = links[k, 8] if k < n - 1 else 0.0
+        A_in = links[k - 1, 11] if k > 0 else 0.0
+        A_out = links[k, 11] if k < n - 1 else 0.0
+        mVW = m[k] * V * W
+        lam0 = (inertia[k] * alpha - P_in + P_out) / h[k] - 2.0 * Fp + mVW
+        lamg = (inertia[k] * alpha_g - A_in + A_out) / h[k] - 2.0 * Gp
+        links[k, 12] = lam0
+        links[k, 13] = lamg
+        Fa += -c_wheel[k] * V - m[k] * Vdot
+        Fp += lam0 - mVW
+        Ga += -m[k] * Vdot_g
+        Gp += lamg
+        if k > 0:
+            C = links[k - 1, 9]
+            S = links[k - 1, 10]
+            Fa, Fp = Fa * C - Fp * S, Fa * S + Fp * C
+            Ga, Gp = Ga * C - Gp * S, Ga * S + Gp * C
+        room = grip_room(lam0, lamg, grip[k])
+        scale = room if room < scale else scale
+    if du_old.shape[0] == 2:
+        r0_old = r0 + old_scale * ra0
+        r1_old = r1 + old_scale * ra1
+        du_old[0] = (M11 * r0_old - M01 * r1_old) / det
+        du_old[1] = (M00 * r1_old - M01 * r0_old) / det
+    # eq. 8 at the scale, as the lane kernel computes it (_traction_lanes)
+    r0 = r0 + scale * ra0
+    r1 = r1 + scale * ra1
+    du[0] = (M11 * r0 - M01 * r1) / det
+    du[1] = (M00 * r1 - M01 * r0) / det
+    for k in range(n):
+        lam[k] = links[k, 12] + scale * links[k, 13]
+    return power + scale * pa, scale
 
 
 @njit(cache=True, nogil=True)
@@ -226,12 +340,14 @@ def wheel_lateral_forces(model, q, u, torques, links, dq, du, out):
     """The wheels' lateral forces lambda_k (N, along e_k_perp) of state (q, u) under the commanded
     ``torques``: eq. 27's multipliers by the backward Newton-Euler sweep of
     :mod:`snake_env.dynamics.wheel_reactions` (its numpy reference), with the env's effective joint
-    torques (motor, damping, barrier). ``links`` (n, LINK_CHANNELS), dq (n+2,), du (2,) are scratch;
-    writes out (n,)."""
+    torques (motor, traction limit, damping, barrier). ``links`` (n, LINK_CHANNELS), dq (n+2,),
+    du (2,) are scratch; writes out (n,); returns the traction scale (1 with unlimited grip)."""
+    if model[11].shape[0] > 0:
+        return traction_derivatives(model, q, u, torques, dq, du, links, out)[1]
     m, h, inertia = model[0], model[1], model[2]
     c_wheel = model[4]
     n = m.shape[0]
-    _kane_sweep(model, q, u, torques, dq, du, links, True)
+    _kane_sweep(model, q, u, torques, dq, du, links, True, 1.0, False)
     # F_k, the pin force of link k+1 on link k (N), in link k's frame (along e_k, along e_k_perp):
     # e_k x F_k is then its second component; 0 beyond the tail
     Fa = 0.0
@@ -252,16 +368,18 @@ def wheel_lateral_forces(model, q, u, torques, links, dq, du, out):
             C = links[k - 1, 9]
             S = links[k - 1, 10]
             Fa, Fp = Fa * C - Fp * S, Fa * S + Fp * C
+    return 1.0
 
 
 @njit(cache=True, nogil=True)
-def wheel_lateral_forces_batch(model, q, u, torques, out):
-    """:func:`wheel_lateral_forces` of every row: q (B, n+2), u (B, 2), torques (B, n-1), out (B, n)."""
+def wheel_lateral_forces_batch(model, q, u, torques, out, scale):
+    """:func:`wheel_lateral_forces` of every row: q (B, n+2), u (B, 2), torques (B, n-1), out (B, n);
+    scale (B,) gets each row's traction scale."""
     links = np.empty((q.shape[1] - 2, LINK_CHANNELS))
     dq = np.empty(q.shape[1])
     du = np.empty(2)
     for b in range(q.shape[0]):
-        wheel_lateral_forces(model, q[b], u[b], torques[b], links, dq, du, out[b])
+        scale[b] = wheel_lateral_forces(model, q[b], u[b], torques[b], links, dq, du, out[b])
 
 
 @njit(cache=True, nogil=True)
@@ -275,7 +393,7 @@ def rk4_step(model, q, u, torques, dt, n_substeps):
 @njit(cache=True, nogil=True)
 def rk4_workspace_size(nq):
     """Scratch floats :func:`rk4_step_workspace` needs for nq = n + 2 coordinates."""
-    return 3 * nq + 6
+    return 3 * nq + 6 + (nq - 2) * (LINK_CHANNELS + 1)
 
 
 @njit(cache=True, nogil=True)
@@ -294,12 +412,20 @@ def rk4_step_workspace(model, q, u, torques, dt, n_substeps, workspace):
     us = workspace[3 * nq:3 * nq + 2]
     ku = workspace[3 * nq + 2:3 * nq + 4]
     acc_u = workspace[3 * nq + 4:3 * nq + 6]
+    n = nq - 2
+    links = workspace[3 * nq + 6:3 * nq + 6 + n * LINK_CHANNELS].reshape((n, LINK_CHANNELS))
+    lam = workspace[3 * nq + 6 + n * LINK_CHANNELS:3 * nq + 6 + n * (LINK_CHANNELS + 1)]
+    traction = model[11].shape[0] > 0
     half = 0.5 * dt
     sixth = dt / 6.0
     work = 0.0
+    scale = 1.0
     for _ in range(n_substeps):
-        # stage 1 at (q, u)
-        p1 = derivatives(model, q, u, torques, kq, ku)
+        # stage 1 at (q, u); with finite grip the traction scale is set here and held for the substep
+        if traction:
+            p1, scale = traction_derivatives(model, q, u, torques, kq, ku, links, lam)
+        else:
+            p1 = derivatives(model, q, u, torques, kq, ku)
         for j in range(nq):
             acc_q[j] = kq[j]
             qs[j] = q[j] + half * kq[j]
@@ -308,7 +434,7 @@ def rk4_step_workspace(model, q, u, torques, dt, n_substeps, workspace):
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
         # stage 2 at the midpoint predicted by stage 1
-        p2 = derivatives(model, qs, us, torques, kq, ku)
+        p2 = derivatives(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + half * kq[j]
@@ -317,7 +443,7 @@ def rk4_step_workspace(model, q, u, torques, dt, n_substeps, workspace):
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
         # stage 3 at the midpoint predicted by stage 2
-        p3 = derivatives(model, qs, us, torques, kq, ku)
+        p3 = derivatives(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + dt * kq[j]
@@ -326,7 +452,7 @@ def rk4_step_workspace(model, q, u, torques, dt, n_substeps, workspace):
         us[0] = u[0] + dt * ku[0]
         us[1] = u[1] + dt * ku[1]
         # stage 4 at the end point predicted by stage 3
-        p4 = derivatives(model, qs, us, torques, kq, ku)
+        p4 = derivatives(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             q[j] += sixth * (acc_q[j] + kq[j])
         u[0] += sixth * (acc_u[0] + ku[0])
@@ -344,11 +470,17 @@ def rk4_step_batch(model, q, u, torques, dt, n_substeps, work):
         work[b] = rk4_step_workspace(model, q[b], u[b], torques[b], dt, n_substeps, workspace)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _paper_model(m, h, inertia, c_joint, c_wheel):
+    """The KernelModel tuple of the paper's model: no joint limits, ideal torque sources, unlimited grip."""
+    return (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf, np.empty(0))
+
+
 @njit(cache=True, nogil=True)
 def derivatives_batch_serial(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, power):
     """:func:`derivatives_batch` on one thread: for small batches (e.g. one
     simulation), where starting threads at every RK4 stage costs more than the work."""
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)  # no joint limits, ideal motors
+    model = _paper_model(m, h, inertia, c_joint, c_wheel)
     for b in range(q.shape[0]):
         power[b] = derivatives(model, q[b], u[b], torques[b], dq[b], du[b])
 
@@ -359,7 +491,7 @@ def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, po
 
     These paper-model kernels (used by :mod:`kane` and :mod:`integrators`) take the
     five arrays of ``SnakeModel.parameters()`` and make the KernelModel tuple inside."""
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)
+    model = _paper_model(m, h, inertia, c_joint, c_wheel)
     for b in prange(q.shape[0]):
         power[b] = derivatives(model, q[b], u[b], torques[b], dq[b], du[b])
 
@@ -368,7 +500,7 @@ def derivatives_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, dq, du, po
 def udot_single(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """udot (2,) of one state of the paper's model (no joint limits), written into du."""
     dq = np.empty(q.shape[0])
-    derivatives((m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf), q, u, torques, dq, du)
+    derivatives(_paper_model(m, h, inertia, c_joint, c_wheel), q, u, torques, dq, du)
 
 
 @njit(cache=True, nogil=True)
@@ -376,7 +508,7 @@ def udot_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """udot (B, 2) of the paper's model (no joint limits) for q (B, n+2),
     u (B, 2), torques (B, n-1); serial, for the small batches of ``model.udot``."""
     dq = np.empty(q.shape[1])
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)
+    model = _paper_model(m, h, inertia, c_joint, c_wheel)
     for b in range(q.shape[0]):
         derivatives(model, q[b], u[b], torques[b], dq, du[b])
 
@@ -385,7 +517,7 @@ def udot_batch(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
 def udot_batch_parallel(m, h, inertia, c_joint, c_wheel, q, u, torques, du):
     """:func:`udot_batch` spread over threads, for large batches."""
     nq = q.shape[1]
-    model = (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf)
+    model = _paper_model(m, h, inertia, c_joint, c_wheel)
     for b in prange(q.shape[0]):
         dq = np.empty(nq)
         derivatives(model, q[b], u[b], torques[b], dq, du[b])
@@ -497,22 +629,32 @@ LANES = 16
 # are left to callers (e.g. the env's CM and kinetic energy).
 # The error-estimating variant (rk4_lanes_estimate) also keeps the last stage-4
 # derivative of u and the estimate's running maximum (rows H_K4U0, H_K4U1, H_ERR).
+# With finite grip (traction_derivatives): the substep's traction scale and the previous substep's.
 (H_U0, H_U1, H_US0, H_US1, H_ACCU0, H_ACCU1, H_X, H_Y, H_XS, H_YS, H_ACCX, H_ACCY, H_WORK, H_PACC,
- H_K4U0, H_K4U1, H_ERR, H_FREE) = range(18)
-N_HEADER = 32
+ H_K4U0, H_K4U1, H_ERR, H_SCALE, H_SCALE_OLD, H_FREE) = range(20)
+N_HEADER = 48  # >= BLOCK: block -1 (lane_block(0) - one block) lies in the header, see _traction_lanes
 # block rows of link k: theta_k (substep start, stage, RK4 sum), torque of joint k,
 # the sweep's channels entering link k (dV/du1, dV/du2, V, Vb, domega/du1,
 # domega/du2, omega, omegab) and the sums M, r, power over links < k.
+# With finite grip also joint k's motor torque A_k and passive torque P_k, cos, sin of phi_k,
+# the sums of the motors' generalized forces and power over links < k, the traction scale, and
+# the backward sweep's values carried from link k+1 to k (udot at scale 0 and the motors' share,
+# the two pin forces, the least room so far). Values a lane loop carries from link to link live
+# in the blocks, never in the header: every address in the loop is then a constant distance from
+# the block's, so LLVM vectorises it without run-time alias checks.
 # Rows from B_FREE on are left to callers.
 (B_Q, B_QS, B_ACC, B_TQ, B_A1, B_A2, B_V, B_VB, B_B1, B_B2, B_W, B_WB, B_M00, B_M01, B_M11, B_R0, B_R1, B_PW,
- B_K4, B_FREE) = range(20)
-BLOCK = 24
+ B_K4, B_TA, B_TP, B_C, B_S, B_RA0, B_RA1, B_PA, B_SC, B_DP0, B_DP1, B_G0, B_G1, B_FA, B_FP, B_GA, B_GP, B_ROOM,
+ B_FREE) = range(37)
+BLOCK = 41
+assert N_HEADER >= BLOCK
 _U = np.uint64
 # the same rows as unsigned offsets (row * LANES)
 (_H_U0, _H_U1, _H_US0, _H_US1, _H_ACCU0, _H_ACCU1, _H_X, _H_Y, _H_XS, _H_YS, _H_ACCX, _H_ACCY, _H_WORK,
- _H_PACC, _H_K4U0, _H_K4U1, _H_ERR) = (np.uint64(r * LANES) for r in range(17))
+ _H_PACC, _H_K4U0, _H_K4U1, _H_ERR, _H_SCALE, _H_SCALE_OLD) = (np.uint64(r * LANES) for r in range(19))
 (_B_Q, _B_QS, _B_ACC, _B_TQ, _B_A1, _B_A2, _B_V, _B_VB, _B_B1, _B_B2, _B_W, _B_WB, _B_M00, _B_M01, _B_M11, _B_R0,
- _B_R1, _B_PW, _B_K4) = (np.uint64(r * LANES) for r in range(19))
+ _B_R1, _B_PW, _B_K4, _B_TA, _B_TP, _B_C, _B_S, _B_RA0, _B_RA1, _B_PA, _B_SC, _B_DP0, _B_DP1, _B_G0, _B_G1, _B_FA,
+ _B_FP, _B_GA, _B_GP, _B_ROOM) = (np.uint64(r * LANES) for r in range(36))
 _NEXT = np.uint64(BLOCK * LANES)  # from one block to the next
 
 
@@ -550,9 +692,10 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
     singular or NaN state gives inf/NaN (caught by the caller's finite check)
     instead of an exception, and keeps the loops free of exits.
     """
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip = model
     n = m.shape[0]
     motor = t_max < math.inf
+    traction = grip.shape[0] > 0  # finite grip: stage 1 sets the substep's traction scale (traction_derivatives)
     first = stage == 1
     last = stage == 4
     c = dt if stage == 3 else 0.5 * dt
@@ -561,6 +704,10 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
     inv_room = inverse_room(limit)
     lanes = _U(nl)
     b0 = lane_block(0)
+    if traction and first:  # the sweep at scale 0: the passive torques alone (the motors' share kept apart)
+        for l in range(lanes):
+            s[_H_SCALE_OLD + l] = s[_H_SCALE + l]
+            s[_H_SCALE + l] = 0.0
     # link 1: qdot of x, y (eq. 1: (x, y) moves with V_1 along e_1) and the sweep's start values
     for l in range(lanes):
         V = s[_H_US0 + l]
@@ -588,6 +735,11 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
         s[b0 + _B_R0 + l] = 0.0
         s[b0 + _B_R1 + l] = 0.0
         s[b0 + _B_PW + l] = 0.0
+        s[b0 + _B_SC + l] = s[_H_SCALE + l]
+        if first:
+            s[b0 + _B_RA0 + l] = 0.0
+            s[b0 + _B_RA1 + l] = 0.0
+            s[b0 + _B_PA + l] = 0.0
     for k in range(n):
         o = lane_block(k)
         p = o + _NEXT
@@ -647,6 +799,12 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
                 T = s[o + _B_TQ + l]
                 if motor:  # the command clipped to the motor's torque-speed band and current limit
                     T = motor_torque(T, phidot, stall, inv_w0, t_max)
+                # the traction scale: 1 without grip (bit for bit A); with grip 0 in the stage-1 sweep, then
+                # the substep's (read, not branched on, so that the lane loop stays one vectorised loop)
+                A = T
+                scale = s[o + _B_SC + l]
+                s[p + _B_SC + l] = scale
+                T = scale * A
                 T = T - cjk * phidot
                 if use_limit:
                     beyond = (phi > limit) | (phi < -limit)
@@ -659,6 +817,14 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
                 r0 += T * (nb1 - b1)
                 r1 += T * (nb2 - b2)
                 power += T * phidot
+                if first:  # the motors' share and what the backward sweep reads (used with grip only)
+                    s[p + _B_RA0 + l] = s[o + _B_RA0 + l] + A * (nb1 - b1)
+                    s[p + _B_RA1 + l] = s[o + _B_RA1 + l] + A * (nb2 - b2)
+                    s[p + _B_PA + l] = s[o + _B_PA + l] + A * phidot
+                    s[o + _B_TA + l] = A
+                    s[o + _B_TP + l] = T
+                    s[o + _B_C + l] = C
+                    s[o + _B_S + l] = S
                 s[p + _B_A1 + l] = na1
                 s[p + _B_A2 + l] = na2
                 s[p + _B_V + l] = nV
@@ -673,6 +839,12 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
             s[p + _B_R0 + l] = r0
             s[p + _B_R1 + l] = r1
             s[p + _B_PW + l] = power
+            if first and not joint:
+                s[p + _B_RA0 + l] = s[o + _B_RA0 + l]
+                s[p + _B_RA1 + l] = s[o + _B_RA1 + l]
+                s[p + _B_PA + l] = s[o + _B_PA + l]
+    if traction and first:  # the scale; r and power of block n become those at the scale
+        _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes)
     # eq. 8 solved for udot (2x2), then the update of u and of the work
     o = lane_block(n)
     for l in range(lanes):
@@ -686,8 +858,15 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
         du0 = (M11 * r0 - M01 * r1) / det
         du1 = (M00 * r1 - M01 * r0) / det
         if estimate == 1:
-            e0 = abs(sixth * (s[_H_K4U0 + l] - du0)) * inv_tol / (abs(s[_H_U0 + l]) + v_ref)
-            e1 = abs(sixth * (s[_H_K4U1 + l] - du1)) * inv_tol / (abs(s[_H_U1 + l]) + 1.0)
+            k5u0 = du0
+            k5u1 = du1
+            if traction:  # k5 at the finished substep's own scale (see traction_derivatives)
+                r0 = s[o + _B_DP0 + l]
+                r1 = s[o + _B_DP1 + l]
+                k5u0 = (M11 * r0 - M01 * r1) / det
+                k5u1 = (M00 * r1 - M01 * r0) / det
+            e0 = abs(sixth * (s[_H_K4U0 + l] - k5u0)) * inv_tol / (abs(s[_H_U0 + l]) + v_ref)
+            e1 = abs(sixth * (s[_H_K4U1 + l] - k5u1)) * inv_tol / (abs(s[_H_U1 + l]) + 1.0)
             e = e0 if e0 > e1 else e1
             s[_H_ERR + l] = e if e > s[_H_ERR + l] else s[_H_ERR + l]
         if estimate == 4:
@@ -706,6 +885,106 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
         work = s[_H_WORK + l]
         s[_H_WORK + l] = work + sixth * (pacc + power) if last else work
         s[_H_PACC + l] = power if first else pacc + 2.0 * power
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes):
+    """The traction scale of :func:`traction_derivatives` for every lane, after a stage-1 sweep at
+    scale 0 that kept the motors' share apart (rows B_TA, B_TP, B_C, B_S, B_RA0, B_RA1, B_PA):
+    the backward sweep from link n to 1 carries udot at scale 0, the motors' udot, the two pin
+    forces and the least room in block rows; then row H_SCALE gets the scale, and block n's r and
+    power become those at the scale. The same operations in the same order as the per-snake kernel."""
+    n = m.shape[0]
+    o = lane_block(n)
+    for l in range(lanes):
+        M00 = s[o + _B_M00 + l]
+        M01 = s[o + _B_M01 + l]
+        M11 = s[o + _B_M11 + l]
+        r0 = s[o + _B_R0 + l]
+        r1 = s[o + _B_R1 + l]
+        ra0 = s[o + _B_RA0 + l]
+        ra1 = s[o + _B_RA1 + l]
+        det = M00 * M11 - M01 * M01
+        s[o + _B_DP0 + l] = (M11 * r0 - M01 * r1) / det
+        s[o + _B_DP1 + l] = (M00 * r1 - M01 * r0) / det
+        s[o + _B_G0 + l] = (M11 * ra0 - M01 * ra1) / det
+        s[o + _B_G1 + l] = (M00 * ra1 - M01 * ra0) / det
+        s[o + _B_FA + l] = 0.0
+        s[o + _B_FP + l] = 0.0
+        s[o + _B_GA + l] = 0.0
+        s[o + _B_GP + l] = 0.0
+        s[o + _B_ROOM + l] = 1.0
+    for k in range(n - 1, -1, -1):
+        o = lane_block(k)
+        x = o + _NEXT  # link k+1's block: the carried values
+        # joint k-1, between links k-1 and k: read only for k > 0, but its address is always one block
+        # back (in the header for k = 0), a constant distance from o, so the lane loop vectorises
+        i = o - _NEXT
+        inner = k > 0
+        outer = k < n - 1
+        mk = m[k]
+        Ik = inertia[k]
+        hk = h[k]
+        cwk = c_wheel[k]
+        gk = grip[k]
+        for l in range(lanes):
+            du0 = s[x + _B_DP0 + l]
+            du1 = s[x + _B_DP1 + l]
+            g0 = s[x + _B_G0 + l]
+            g1 = s[x + _B_G1 + l]
+            s[o + _B_DP0 + l] = du0
+            s[o + _B_DP1 + l] = du1
+            s[o + _B_G0 + l] = g0
+            s[o + _B_G1 + l] = g1
+            V = s[o + _B_V + l]
+            W = s[o + _B_W + l]
+            a1 = s[o + _B_A1 + l]
+            a2 = s[o + _B_A2 + l]
+            b1 = s[o + _B_B1 + l]
+            b2 = s[o + _B_B2 + l]
+            Vdot = a1 * du0 + a2 * du1 + s[o + _B_VB + l]
+            alpha = b1 * du0 + b2 * du1 + s[o + _B_WB + l]
+            Vdot_g = a1 * g0 + a2 * g1
+            alpha_g = b1 * g0 + b2 * g1
+            P_in = s[i + _B_TP + l] if inner else 0.0
+            P_out = s[o + _B_TP + l] if outer else 0.0
+            A_in = s[i + _B_TA + l] if inner else 0.0
+            A_out = s[o + _B_TA + l] if outer else 0.0
+            Fa = s[x + _B_FA + l]
+            Fp = s[x + _B_FP + l]
+            Ga = s[x + _B_GA + l]
+            Gp = s[x + _B_GP + l]
+            mVW = mk * V * W
+            lam0 = (Ik * alpha - P_in + P_out) / hk - 2.0 * Fp + mVW
+            lamg = (Ik * alpha_g - A_in + A_out) / hk - 2.0 * Gp
+            Fa += -cwk * V - mk * Vdot
+            Fp += lam0 - mVW
+            Ga += -mk * Vdot_g
+            Gp += lamg
+            if inner:
+                C = s[i + _B_C + l]
+                S = s[i + _B_S + l]
+                Fa, Fp = Fa * C - Fp * S, Fa * S + Fp * C
+                Ga, Gp = Ga * C - Gp * S, Ga * S + Gp * C
+            s[o + _B_FA + l] = Fa
+            s[o + _B_FP + l] = Fp
+            s[o + _B_GA + l] = Ga
+            s[o + _B_GP + l] = Gp
+            room = grip_room(lam0, lamg, gk)
+            least = s[x + _B_ROOM + l]
+            s[o + _B_ROOM + l] = room if room < least else least
+    b0 = lane_block(0)
+    o = lane_block(n)
+    for l in range(lanes):
+        scale = s[b0 + _B_ROOM + l]
+        s[_H_SCALE + l] = scale
+        # r at the previous substep's scale, for the error estimate (rows free again: DP of block n)
+        old = s[_H_SCALE_OLD + l]
+        s[o + _B_DP0 + l] = s[o + _B_R0 + l] + old * s[o + _B_RA0 + l]
+        s[o + _B_DP1 + l] = s[o + _B_R1 + l] + old * s[o + _B_RA1 + l]
+        s[o + _B_R0 + l] = s[o + _B_R0 + l] + scale * s[o + _B_RA0 + l]
+        s[o + _B_R1 + l] = s[o + _B_R1 + l] + scale * s[o + _B_RA1 + l]
+        s[o + _B_PW + l] = s[o + _B_PW + l] + scale * s[o + _B_PA + l]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -770,9 +1049,17 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
     sixth = dt / 6.0
     inv_tol = 1.0 / tol
     n = nq - 2
+    traction = model[11].shape[0] > 0
+    links = np.empty((n, LINK_CHANNELS))
+    lam = np.empty(n)
+    du_old = np.empty(2)  # f(y1)'s udot at the substep's own traction scale, for the estimate
     work = 0.0
     err = 0.0
-    p1 = derivatives(model, q, u, torques, kq, ku)
+    scale = 1.0
+    if traction:  # the traction scale of each substep is set at its start (see rk4_step_workspace)
+        p1, scale = traction_derivatives(model, q, u, torques, kq, ku, links, lam)
+    else:
+        p1 = derivatives(model, q, u, torques, kq, ku)
     for i in range(n_substeps):
         # stage 1 at (q, u): kq, ku hold it (computed at the end of the previous substep)
         for j in range(nq):
@@ -782,7 +1069,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         acc_u[1] = ku[1]
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
-        p2 = derivatives(model, qs, us, torques, kq, ku)
+        p2 = derivatives(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + half * kq[j]
@@ -790,7 +1077,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         acc_u[1] += 2.0 * ku[1]
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
-        p3 = derivatives(model, qs, us, torques, kq, ku)
+        p3 = derivatives(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + dt * kq[j]
@@ -798,7 +1085,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         acc_u[1] += 2.0 * ku[1]
         us[0] = u[0] + dt * ku[0]
         us[1] = u[1] + dt * ku[1]
-        p4 = derivatives(model, qs, us, torques, kq, ku)
+        p4 = derivatives(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             q[j] += sixth * (acc_q[j] + kq[j])
             k4q[j] = kq[j]
@@ -807,13 +1094,19 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         k4u[0] = ku[0]
         k4u[1] = ku[1]
         work += sixth * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
-        # k5 = f(y_{n+1}), the next substep's k1 (FSAL)
-        p1 = derivatives(model, q, u, torques, kq, ku)
+        # k5 = f(y_{n+1}), the next substep's k1 (FSAL); with grip the estimate takes k5's udot at
+        # this substep's scale (du_old), the next substep its own
+        if traction:
+            p1, scale = traction_derivatives(model, q, u, torques, kq, ku, links, lam, scale, du_old)
+        else:
+            p1 = derivatives(model, q, u, torques, kq, ku)
+            du_old[0] = ku[0]
+            du_old[1] = ku[1]
         for k in range(n):
             e = abs(sixth * (k4q[k] - kq[k])) * inv_tol
             err = e if e > err else err
-        e0 = abs(sixth * (k4u[0] - ku[0])) * inv_tol / (abs(u[0]) + v_ref)
-        e1 = abs(sixth * (k4u[1] - ku[1])) * inv_tol / (abs(u[1]) + 1.0)
+        e0 = abs(sixth * (k4u[0] - du_old[0])) * inv_tol / (abs(u[0]) + v_ref)
+        e1 = abs(sixth * (k4u[1] - du_old[1])) * inv_tol / (abs(u[1]) + 1.0)
         err = e0 if e0 > err else err
         err = e1 if e1 > err else err
         if stop_above_tol and err > 1.0:
@@ -841,6 +1134,7 @@ def load_lanes(s, q, u, torques, index, start, nl):
         s[_H_US0 + l] = u[b, 0]
         s[_H_US1 + l] = u[b, 1]
         s[_H_WORK + l] = 0.0
+        s[_H_SCALE + l] = 1.0  # the motors' torques in full; with grip each substep sets its traction scale
 
 
 @njit(cache=True, nogil=True)

@@ -146,6 +146,8 @@ class PhysicsParams:
             needs a shorter step than sim_dt); the env step stays sim_dt * frame_skip.
         stall_torque (N m), inverse_no_load_speed (s/rad), torque_limit (N m): the joint motors
             (:mod:`snake_env.dynamics.motor`); torque_limit = inf: ideal torque sources.
+        wheel_grip (N): mu m_k g of every wheel (n,), the traction limit of
+            ``compiled.traction_derivatives``; None: unlimited grip (the paper's no-slip wheels).
 
     The kernels take these as two arguments, :attr:`kernel_model` (``compiled.KernelModel``)
     and :attr:`kernel_settings` (:class:`StepSettings`), made on first use.
@@ -170,6 +172,7 @@ class PhysicsParams:
     stall_torque: float = math.inf
     inverse_no_load_speed: float = 0.0
     torque_limit: float = math.inf
+    wheel_grip: np.ndarray | None = None
 
     @property
     def n_links(self) -> int:
@@ -180,7 +183,8 @@ class PhysicsParams:
         """The kernels' ``model`` argument (``compiled.KernelModel``'s fields), made once."""
         return compiled.kernel_model(self.mass, self.half_length, self.inertia, self.joint_damping,
                                      self.wheel_damping, self.joint_limit, self.limit_stiffness, self.limit_damping,
-                                     self.stall_torque, self.inverse_no_load_speed, self.torque_limit)
+                                     self.stall_torque, self.inverse_no_load_speed, self.torque_limit,
+                                     self.wheel_grip)
 
     @cached_property
     def kernel_settings(self) -> tuple:
@@ -802,11 +806,12 @@ def observe(params: PhysicsParams, q, u):
     return obs, aux
 
 
-def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out) -> None:
+def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out, scale) -> None:
     """The wheels' lateral forces (N) of states q (B, n+2), u (B, 2) under the commanded torques
     (B, n-1) (N m) into out (B, n): eq. 27's multipliers by the compiled O(n) backward sweep
-    (``compiled.wheel_lateral_forces``), with the step's motor, damping and barrier."""
-    compiled.wheel_lateral_forces_batch(params.kernel_model, q, u, torques, out)
+    (``compiled.wheel_lateral_forces``), with the step's motor, traction limit, damping and barrier;
+    the traction scale of each state into scale (B,) (1 with unlimited grip)."""
+    compiled.wheel_lateral_forces_batch(params.kernel_model, q, u, torques, out, scale)
 
 
 # Said once per process on stderr before the first step compiles the kernels: measured 84-92 s from

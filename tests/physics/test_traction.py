@@ -1,0 +1,147 @@
+"""The traction limit (compiled.traction_derivatives): with finite grip the motors' torques are
+scaled by the largest s <= 1 that keeps every wheel's lateral force within mu m_k g, or adds no
+excess where the motion alone exceeds it.
+
+Cross-checked against the kernel without grip (the same state under the scaled torques gives the
+same udot and wheel forces), checked for maximality, for the lane kernel = the per-snake kernel, for
+the work-energy balance of the step, and for its limit: ample grip gives the no-slip trajectories.
+"""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from snake_env.dynamics import compiled
+from snake_env.physics import GRAVITY, PhysicsConfig
+
+
+def _models(n, friction, **kwargs):
+    """(kernel model with grip, the same without) of an env config, with ideal torque sources unless
+    ``actuator`` is given (the scale multiplies the motor's output, so only for ideal sources is it a
+    scale of the commands)."""
+    kwargs.setdefault("actuator", "ideal")
+    _, params = PhysicsConfig(n_links=n, wheel_friction=friction, **kwargs).build()
+    _, plain = PhysicsConfig(n_links=n, **kwargs).build()
+    return params.kernel_model, plain.kernel_model
+
+
+def _random_state(rng, n, speed=1.0):
+    """A state with joint angles within 1 rad and speeds of scale ``speed`` (m/s, rad/s)."""
+    q = np.empty(n + 2)
+    q[0] = rng.uniform(-math.pi, math.pi)
+    q[1:n] = q[0] + np.cumsum(rng.uniform(-1.0, 1.0, n - 1))
+    q[n:] = rng.uniform(-1.0, 1.0, 2)
+    return q, rng.normal(0.0, speed, 2)
+
+
+@pytest.mark.parametrize("n", [2, 3, 5, 12])
+def test_scaled_step_is_the_plain_sweep_under_the_scaled_torques(rng, n):
+    """udot, the power and lambda at the chosen scale equal the grip-free kernel's under s * torques."""
+    model, plain = _models(n, 0.6, joint_limit=None)
+    links = np.empty((n, compiled.LINK_CHANNELS))
+    scales = []
+    for _ in range(40):
+        q, u = _random_state(rng, n, speed=0.1)
+        torques = rng.uniform(-1.0, 1.0, n - 1) * rng.choice([0.05, 3.0])
+        dq, du, lam = np.empty(n + 2), np.empty(2), np.empty(n)
+        power, scale = compiled.traction_derivatives(model, q, u, torques, dq, du, links, lam)
+        dq_ref, du_ref, lam_ref = np.empty(n + 2), np.empty(2), np.empty(n)
+        power_ref = compiled.derivatives(plain, q, u, scale * torques, dq_ref, du_ref)
+        compiled.wheel_lateral_forces(plain, q, u, scale * torques, np.empty((n, compiled.LINK_CHANNELS)),
+                                      np.empty(n + 2), np.empty(2), lam_ref)
+        np.testing.assert_allclose(du, du_ref, rtol=1e-10, atol=1e-10)
+        np.testing.assert_array_equal(dq, dq_ref)
+        assert power == pytest.approx(power_ref, rel=1e-10, abs=1e-10)
+        np.testing.assert_allclose(lam, lam_ref, rtol=1e-10, atol=1e-9)
+        scales.append(scale)
+    assert min(scales) < 1.0 and max(scales) == 1.0  # the draws exercise both cases
+
+
+def test_scale_is_the_largest_that_keeps_the_wheels_within_their_grip(rng):
+    """No wheel ends beyond max(mu m g, |lambda_0|), and below s = 1 one wheel is at that bound (so a
+    larger s would push it out): torque that would make a wheel slip buys no acceleration."""
+    n, mu = 6, 0.7
+    model, plain = _models(n, mu, joint_limit=None)
+    grip = mu * 1.0 * GRAVITY  # paper links: 1 kg
+    links = np.empty((n, compiled.LINK_CHANNELS))
+    scratch = (np.empty((n, compiled.LINK_CHANNELS)), np.empty(n + 2), np.empty(2))
+    limited = 0
+    for _ in range(200):
+        q, u = _random_state(rng, n, speed=rng.choice([0.1, 2.0]))
+        torques = rng.uniform(-3.0, 3.0, n - 1)
+        lam, lam0 = np.empty(n), np.empty(n)
+        _, scale = compiled.traction_derivatives(model, q, u, torques, np.empty(n + 2), np.empty(2), links, lam)
+        compiled.wheel_lateral_forces(plain, q, u, 0.0 * torques, *scratch, lam0)
+        bound = np.maximum(grip, np.abs(lam0))
+        assert 0.0 <= scale <= 1.0
+        assert np.all(np.abs(lam) <= bound * (1 + 1e-9) + 1e-9)
+        if scale < 1.0:
+            limited += 1
+            assert np.max(np.abs(lam) / bound) == pytest.approx(1.0, rel=1e-9)
+    assert limited >= 50
+
+
+def test_lane_kernel_steps_as_the_per_snake_kernel_with_grip(rng):
+    """rk4_step_lanes (SIMD over snakes) = rk4_step_batch per snake, to rounding (sin/cos, <= 1 ulp)."""
+    n, B = 5, 37
+    model, _ = _models(n, 0.5, actuator="servo")
+    q = np.empty((B, n + 2))
+    u = np.empty((B, 2))
+    for b in range(B):
+        q[b], u[b] = _random_state(rng, n)
+    torques = rng.uniform(-1.0, 1.0, (B, n - 1))
+    q_ref, u_ref, w_ref = q.copy(), u.copy(), np.empty(B)
+    compiled.rk4_step_batch(model, q_ref, u_ref, torques, 0.005, 4, w_ref)
+    w = np.empty(B)
+    compiled.rk4_step_lanes(model, q, u, torques, 0.005, 4, w)
+    np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(u, u_ref, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(w, w_ref, rtol=0, atol=1e-11)
+
+
+def test_work_energy_balance_holds_under_the_traction_limit(rng):
+    """K(t1) - K(t0) = the work of every load, with the motors' work at the substeps' scales."""
+    n = 5
+    snake, params = PhysicsConfig(n_links=n, wheel_friction=0.3, joint_limit=None, joint_damping=0.05).build()
+    model = params.kernel_model
+    q, u = _random_state(rng, n)
+    torques = rng.uniform(-1.0, 1.0, n - 1)
+
+    def kinetic(q, u):
+        return snake.kinetic_energy(q, u)
+
+    k0 = kinetic(q, u)
+    work = 0.0
+    for _ in range(200):
+        work += compiled.rk4_step(model, q, u, torques, 0.001, 1)
+    assert kinetic(q, u) - k0 == pytest.approx(work, rel=1e-6, abs=1e-9)
+
+
+def test_ample_grip_gives_the_no_slip_trajectories():
+    """As mu grows the traction limit stops acting: the env's trajectory converges to the no-slip model's."""
+    actions = np.random.default_rng(3).uniform(-1, 1, (100, 4))
+    final = {}
+    for mu in (None, 1e6, 0.5):
+        env = gym.make("snake_env/Snake5-v2", wheel_friction=mu)
+        env.reset(seed=3)
+        for a in actions:
+            env.step(a)
+        final[mu] = env.unwrapped.state[0].copy()
+    np.testing.assert_allclose(final[1e6], final[None], rtol=0, atol=1e-9)
+    assert np.max(np.abs(final[0.5] - final[None])) > 1e-2  # finite grip changes the motion
+
+
+def test_slip_info_flags_only_the_motions_excess():
+    """With the traction limit a wheel reported slipping (|lambda| > mu m g) is one the motion alone
+    pushes past its grip: the torques add nothing there."""
+    env = gym.make("snake_env/Snake5-v2", wheel_friction=0.3)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    scales = []
+    for _ in range(200):
+        _, _, _, _, info = env.step(rng.choice([-1.0, 1.0], 4))
+        assert 0.0 <= info["traction_scale"] <= 1.0
+        scales.append(info["traction_scale"])
+    assert min(scales) < 0.5
