@@ -13,14 +13,20 @@ Forward running v1 changed the joint limit (a barrier scaled with
 max_torque) and the integration (checked RK4 with refinement); the other
 tasks were born on that physics. The physics' v2 (forward and path v2,
 command and reach v1) fails an accurate fold at once instead of refining it
-(see :mod:`snake_env.physics.stepping`). Earlier versions are not registered
-(gymnasium's error then names the newest): forward v0 is not reproduced by
-any setting, and the previous version of each id differs from the current
-one only on steps that fold, which the default joint limit prevents.
+(see :mod:`snake_env.physics.stepping`). The physics' v3 (forward and path
+v3, command and reach v2) is a robot a lab could build: servo motors and
+wheels with finite grip. The previous version of each shipped id stays
+registered as the same task with the previous physics pinned in its kwargs
+(:data:`~snake_env.physics.config.PREVIOUS_VERSION_PHYSICS`, as CartPole-v0
+differs from v1 by its registration), so runs and configs made on it keep
+working. Older versions are not registered (gymnasium's error then names the
+newest): forward v0 is not reproduced by any setting, and v1 differs from v2
+only on steps that fold, which the default joint limit prevents.
 """
 
 from __future__ import annotations
 
+from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS
 from snake_env.tasks import TASKS, Task, task_class
 
 REGISTERED_N_LINKS = (3, 5, 8, 12, 20, 30)
@@ -29,30 +35,37 @@ GOAL_ENTRY_POINT = "snake_env.envs.snake:SnakeGoalEnv"
 VECTOR_ENTRY_POINT = "snake_env.envs.vector:SnakeVectorEnv"
 
 
-def task_ids(task: type[Task], n_links=REGISTERED_N_LINKS) -> dict[str, dict]:
+def task_ids(task: type[Task], n_links=REGISTERED_N_LINKS, previous: bool = False) -> dict[str, dict]:
     """The ids of one task class with their registration kwargs. A shipped task is named by its
-    ``task=`` string (so a spec prints and pickles plainly), any other by its class."""
+    ``task=`` string (so a spec prints and pickles plainly), any other by its class. ``previous``:
+    also the ids of the version before, with the previous physics pinned (see the module doc)."""
     cls = task_class(task)
     if not cls.id_prefix:
         raise ValueError(f"{cls.__name__}.id_prefix must name the task's ids (e.g. 'SnakeMyTask'), got ''")
     name = cls.name if TASKS.get(cls.name) is cls else cls
-    ids = {f"snake_env/{cls.id_prefix}-v{cls.version}": {"task": name}}
-    ids.update({f"snake_env/{cls.id_prefix}{n}-v{cls.version}": {"task": name, "n_links": int(n)} for n in n_links})
+    versions = [(cls.version, {})]
+    if previous and cls.version > 0:
+        versions.append((cls.version - 1, dict(PREVIOUS_VERSION_PHYSICS)))
+    ids = {}
+    for version, physics in versions:
+        ids[f"snake_env/{cls.id_prefix}-v{version}"] = {"task": name, **physics}
+        ids.update({f"snake_env/{cls.id_prefix}{n}-v{version}": {"task": name, "n_links": int(n), **physics}
+                    for n in n_links})
     return ids
 
 
 def registered_ids() -> dict[str, dict]:
     """Every id of the shipped tasks with its registration kwargs."""
-    return {env_id: kwargs for cls in TASKS.values() for env_id, kwargs in task_ids(cls).items()}
+    return {env_id: kwargs for cls in TASKS.values() for env_id, kwargs in task_ids(cls, previous=True).items()}
 
 
-def register_task(task: type[Task], n_links=REGISTERED_N_LINKS) -> list[str]:
+def register_task(task: type[Task], n_links=REGISTERED_N_LINKS, previous: bool = False) -> list[str]:
     """Register a task class's ids (see the module doc); ids already registered are kept.
-    Returns the ids."""
+    ``previous``: also the previous version's ids (the shipped tasks). Returns the ids."""
     from gymnasium.envs.registration import register, registry
 
     cls = task_class(task)
-    ids = task_ids(cls, n_links)
+    ids = task_ids(cls, n_links, previous)
     for env_id, kwargs in ids.items():
         if env_id in registry:
             continue
@@ -69,4 +82,4 @@ def register_task(task: type[Task], n_links=REGISTERED_N_LINKS) -> list[str]:
 def register_envs() -> None:
     """Register every shipped snake id once; safe to call repeatedly."""
     for cls in TASKS.values():
-        register_task(cls)
+        register_task(cls, previous=True)

@@ -41,7 +41,8 @@ class SpinTask(Task):
 
     @classmethod
     def make_baseline(cls, config, num_envs=1, gait=None, gaits=None, settings=None):
-        """A travelling torque wave with an offset: the snake runs in a circle."""
+        """A travelling torque wave with an offset: the snake runs in a circle (with ideal torque sources
+        and unlimited grip: on the default servos and finite grip its turn is weak and changes sign)."""
         turn = SerpenoidParams("torque", amplitude=0.6, frequency=10.0, phase_lag=1.0, offset=0.2)
         return SerpenoidController(turn, num_envs=num_envs, **controller_geometry(config))
 
@@ -104,6 +105,7 @@ def test_train_evaluate_and_run_its_baseline(registered, tmp_path, capsys):
     assert report["mean_cost_of_transport"] is None or report["mean_cost_of_transport"] > 0
     baseline = tmp_path / "turn.json"
     assert eval_main(["--baseline", "turn", "--env", ENV_ID, "--episodes", "1", "--max-steps", "100",
+                      "--env-kwarg", "actuator=ideal", "--env-kwarg", "wheel_friction=null",
                       "--json", str(baseline)]) == 0
     turn = json.loads(baseline.read_text())
     assert turn["algo"] == "turn" and turn["mean_heading_rate"] > 0.1  # it does turn (5.3 rad/s measured)

@@ -18,7 +18,7 @@ From the joint state sampled once per env step (dt s) over an episode of L steps
   |lambda_k| / (m_k g) (``info["wheel_lateral_force"]``, eq. 27's multipliers), over all
   wheel-steps; ``outside_friction_cone_share``: the share of wheel-steps with |lambda_k| above
   mu m_k g, mu the env's ``wheel_friction`` or, for unlimited grip, :data:`REFERENCE_FRICTION`.
-  A rubber wheel holds about its load (mu ~ 1); the no-slip model is exact only inside the cone.
+  A rubber wheel holds about its load (mu 0.8-1); the no-slip model is exact only inside the cone.
 """
 
 from __future__ import annotations
@@ -27,13 +27,17 @@ import math
 
 import numpy as np
 
+from snake_env.physics.config import DEFAULT_WHEEL_FRICTION
+
 GAIT_METRICS = ("dominant_joint_frequency", "peak_joint_rate", "torque_sign_flip_share", "mean_power", "peak_power",
                 "median_grip_demand", "peak_grip_demand", "outside_friction_cone_share")
 # how the episode values of a gait metric combine over episodes in snake-eval's summary
 SUMMARY = {"dominant_joint_frequency": "mean", "peak_joint_rate": "max", "torque_sign_flip_share": "mean",
            "mean_power": "mean", "peak_power": "max", "median_grip_demand": "mean", "peak_grip_demand": "max",
            "outside_friction_cone_share": "mean"}
-REFERENCE_FRICTION = 1.0  # mu of the cone share when the env's wheels grip without limit (rubber on a floor, ~1)
+# mu of the cone share when the env's wheels grip without limit: the default wheels' (rubber on concrete), so a
+# v2 (unlimited grip) run and a v3 run are held to the same cone
+REFERENCE_FRICTION = DEFAULT_WHEEL_FRICTION
 MIN_STEPS = 4
 
 

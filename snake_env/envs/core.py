@@ -25,11 +25,13 @@ from snake_env.physics import AUX_FAILED, PhysicsConfig
 from snake_env.physics.settings import number, split_kwargs
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
-# info of every step when the wheels' grip is modelled (wheel_friction given), an array (n,) per sub-env:
-# the wheels' lateral forces (N, eq. 27's multipliers, from the step's final state and held torques) and
-# whether each exceeds its grip mu m_k g. Without it the sweep is not paid for (it costs ~0.35 us per
-# snake per step, a 1.1-1.4x slower 1024-env vector env); SnakeEnv.wheel_lateral_forces() computes them.
-WHEEL_INFO_KEYS = ("wheel_lateral_force", "wheel_slip")
+# info of every step when the wheels' grip is modelled (wheel_friction given): per sub-env the wheels'
+# lateral forces (n,) (N, eq. 27's multipliers, from the step's final state and held torques under the
+# traction limit), whether each exceeds its grip mu m_k g (n,) (the motion alone asks more: the wheel
+# slides) and the traction scale (the share of the motors' torques the wheels let through, 1 = all).
+# Without grip the sweep is not paid for (it costs ~0.35 us per snake per step, a 1.1-1.4x slower
+# 1024-env vector env); SnakeEnv.wheel_lateral_forces() computes the forces.
+WHEEL_INFO_KEYS = ("wheel_lateral_force", "wheel_slip", "traction_scale")
 
 
 def make_task_and_config(task, kwargs: dict) -> tuple[Task, PhysicsConfig]:
@@ -128,6 +130,7 @@ class SnakeBatch:
         self.step_info_keys = (COMMON_STEP_INFO_KEYS + WHEEL_INFO_KEYS * self.report_grip + task.step_info_keys
                                + energy)
         self.wheel_force = np.zeros((B, n))
+        self.traction_scale = np.ones(B)
         self.grip = config.grip()
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
@@ -175,6 +178,7 @@ class SnakeBatch:
         if self.report_grip:
             info["wheel_lateral_force"] = self.wheel_lateral_forces()
             info["wheel_slip"] = np.abs(info["wheel_lateral_force"]) > self.grip
+            info["traction_scale"] = self.traction_scale.copy()
         info.update(task_info)
         if self.task.energy_cost_weight:
             # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default
@@ -194,7 +198,8 @@ class SnakeBatch:
 
     def wheel_lateral_forces(self) -> np.ndarray:
         """The wheels' lateral forces (B, n) (N) of the current states under the torques of the last step."""
-        physics.wheel_lateral_forces(self.params, self.q, self.u, self.torques, self.wheel_force)
+        physics.wheel_lateral_forces(self.params, self.q, self.u, self.torques, self.wheel_force,
+                                     self.traction_scale)
         return self.wheel_force.copy()
 
     def failure_reasons(self, rows: np.ndarray) -> list[str]:

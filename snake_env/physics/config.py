@@ -64,15 +64,25 @@ MAX_REFINEMENTS_LIMIT = 12
 # imaginary axis; sim_dt must keep the stiffest rate of the setting inside it with margin.
 RK4_STABLE_RATE_STEP = 2.5
 GRAVITY = 9.81  # m/s^2: the cost of transport and the wheels' normal load m_k g (the snake moves on a plane)
+# The robot of the newest ids (forward v3): servo-class joint motors and rubber wheels on a floor.
+DEFAULT_ACTUATOR = "servo"  # physics.actuators: 1 N m stall torque, 3.14 rad/s no-load speed (XH430-W350)
+# mu of a rubber wheel on a dry concrete floor: the kinetic coefficient 0.8 (static 1.0) of Serway & Beichner,
+# Physics for Scientists and Engineers, 5th ed., Table 5.2; the Engineering ToolBox gives 0.6-0.85. The
+# kinetic value, because beyond the cone the wheel slides.
+DEFAULT_WHEEL_FRICTION = 0.8
+# The physics of every id's previous version (forward and path v2, command and reach v1): ideal torque
+# sources and wheels that grip without limit (the paper's no-slip constraint at any force).
+PREVIOUS_VERSION_PHYSICS = {"actuator": "ideal", "wheel_friction": None}
 
 
 @dataclass(frozen=True)
 class PhysicsConfig:
     """Physical and integration settings shared by every task (kwargs = YAML keys).
 
-    `paper_model=True` is the paper's model (section II): no dissipation and
-    no joint limits; it sets joint_damping = wheel_damping = 0 and
-    joint_limit = None, and rejects other values for them.
+    `paper_model=True` is the paper's model (section II): no dissipation, no
+    joint limits, ideal torque sources and wheels that grip without limit; it
+    sets joint_damping = wheel_damping = 0, joint_limit = None,
+    actuator = "ideal" and wheel_friction = None, and rejects other values for them.
     """
 
     n_links: int = setting(5, "links", "int", minimum=1, doc="number of links n >= 2")
@@ -105,10 +115,11 @@ class PhysicsConfig:
                                      maximum=1.0, doc="tolerance of RK4's embedded local-error estimate per substep")
     max_refinements: int = setting(DEFAULT_MAX_REFINEMENTS, "substep halvings", "int", minimum=0, strict=False,
                                    maximum=MAX_REFINEMENTS_LIMIT, doc="substep halvings of a failing step")
-    wheel_friction: float | None = setting(None, "-", "optional_real", minimum=0.0,
-                                           doc="wheel-floor friction coefficient mu: a wheel slips when its lateral "
-                                               "force exceeds mu m_k g (info wheel_slip); None: unlimited grip")
-    actuator: str = setting("ideal", "-", "choice", maximum=ACTUATORS,
+    wheel_friction: float | None = setting(DEFAULT_WHEEL_FRICTION, "-", "optional_real", minimum=0.0,
+                                           doc="wheel-floor friction coefficient mu: the motors' torques are scaled "
+                                               "so no wheel needs more than mu m_k g sideways (traction limit); "
+                                               "info wheel_slip flags the motion's excess; None: unlimited grip")
+    actuator: str = setting(DEFAULT_ACTUATOR, "-", "choice", maximum=ACTUATORS,
                             doc='joint motors: "ideal" torque sources, or a DC-motor preset (physics.actuators)')
     stall_torque: float | None = setting(None, "N m", "optional_real", minimum=0.0,
                                          doc="motor torque at rest (None: the actuator preset's)")
@@ -125,10 +136,6 @@ class PhysicsConfig:
         check_fields(self)
         if self._auto_substeps:  # keep the marker through check_fields and dataclasses.replace
             object.__setattr__(self, "sim_dt", DEFAULT_SIM_DT)
-        motor = resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed, self.torque_limit)
-        if self.paper_model and motor is not None:
-            raise ValueError(f"paper_model=True has ideal torque sources; do not also pass actuator={self.actuator!r}")
-        object.__setattr__(self, "_motor", motor)
         if self.paper_model:
             # Only the defaults may be overridden silently; anything else contradicts the flag.
             conflicts = [name for name, default in (("joint_damping", DEFAULT_JOINT_DAMPING),
@@ -136,16 +143,30 @@ class PhysicsConfig:
                          if getattr(self, name) not in (default, 0.0)]
             if self.joint_limit not in (None, DEFAULT_JOINT_LIMIT):
                 conflicts.append("joint_limit")
+            if self.actuator not in ("ideal", DEFAULT_ACTUATOR) or any(
+                    getattr(self, name) is not None for name in ("stall_torque", "no_load_speed", "torque_limit")):
+                conflicts.append("actuator")
+            if self.wheel_friction not in (None, DEFAULT_WHEEL_FRICTION):
+                conflicts.append("wheel_friction")
             if conflicts:
-                raise ValueError(f"paper_model=True fixes joint_damping=0, wheel_damping=0 and joint_limit=None; "
-                                 f"do not also pass {', '.join(conflicts)}")
-            for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None)):
+                raise ValueError(f"paper_model=True fixes joint_damping=0, wheel_damping=0, joint_limit=None, "
+                                 f"actuator='ideal' and wheel_friction=None; do not also pass {', '.join(conflicts)}")
+            for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None),
+                                ("actuator", "ideal"), ("wheel_friction", None)):
                 object.__setattr__(self, name, value)
+        object.__setattr__(self, "_motor", resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed,
+                                                            self.torque_limit))
 
     @property
     def dt(self) -> float:
         """Duration of one env step (s)."""
         return self.sim_dt * self.frame_skip
+
+    @property
+    def previous_physics(self) -> bool:
+        """Whether these are the previous version's motors and wheels (:data:`PREVIOUS_VERSION_PHYSICS`:
+        ideal torque sources, unlimited grip), for which gaits were searched on the previous ids."""
+        return all(getattr(self, name) == value for name, value in PREVIOUS_VERSION_PHYSICS.items())
 
     def wheel_load(self) -> np.ndarray:
         """m_k g (N) of every wheel (n,): its normal load on flat ground."""
@@ -177,6 +198,7 @@ class PhysicsConfig:
             # "rk4": a plain fixed step, no error control (the guards still apply)
             error_tolerance=self.error_tolerance if refined else math.inf,
             max_refinements=self.max_refinements if refined else 0,
+            wheel_grip=None if self.wheel_friction is None else self.grip(),
             **({} if self._motor is None else dict(
                 stall_torque=self._motor.stall_torque, torque_limit=self._motor.torque_limit,
                 inverse_no_load_speed=1.0 / self._motor.no_load_speed if self._motor.no_load_speed > 0 else 0.0)))

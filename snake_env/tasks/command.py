@@ -1,4 +1,4 @@
-"""Track a commanded forward speed and yaw rate (``snake_env/SnakeCommand{n}-v1``)."""
+"""Track a commanded forward speed and yaw rate (``snake_env/SnakeCommand{n}-v2``)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ class CommandTask(Task):
     r"""Follow a velocity command: a forward speed and a yaw rate, resampled every few seconds.
 
     ## Description
-    The snake of `snake_env/Snake{n}-v2` (same physics, actions, start state)
+    The snake of `snake_env/Snake{n}-v3` (same physics, actions, start state)
     tracks a command c = (v_cmd, w_cmd): a forward speed along its heading
     (m/s) and a yaw rate (rad/s), like the joystick tasks of MuJoCo Playground.
     The heading is the mean link angle theta_bar = (1/n) sum theta_k
@@ -36,11 +36,11 @@ class CommandTask(Task):
     `speed_range` and `yaw_rate_range`.
 
     ## Action Space
-    As `snake_env/Snake{n}-v2`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
+    As `snake_env/Snake{n}-v3`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
 
     ## Observation Space
     `Box(-inf, inf, (2 n + 6,), float64)`: the physics observation of
-    `Snake{n}-v2` (2 n + 2 entries), then, in the body frame:
+    `Snake{n}-v3` (2 n + 2 entries), then, in the body frame:
 
     | Num | Observation | Unit |
     |-----|-------------|------|
@@ -56,7 +56,7 @@ class CommandTask(Task):
     `yaw_rate_error` = w - w_cmd (rad/s), `speed_command`, `yaw_rate_command`).
 
     ## Starting State
-    As `Snake{n}-v2`; the filters start at 0. The command schedule is fixed at reset
+    As `Snake{n}-v3`; the filters start at 0. The command schedule is fixed at reset
     (a seed per episode drawn from the env's generator).
 
     ## Episode End
@@ -64,7 +64,7 @@ class CommandTask(Task):
     - Truncation: after 1000 steps (40 s, 8 commands), or on a simulator failure.
 
     ## Arguments
-    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, `energy_cost_weight`, and:
+    The physical arguments of `Snake{n}-v3`, `reset_noise_scale`, `energy_cost_weight`, and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|
@@ -78,6 +78,13 @@ class CommandTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v2: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
+      1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
+      mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
+      limit, instead of ideal torque sources and wheels that grip at any force
+      (docs/env.md). `snake_env/SnakeCommand{n}-v1` is still registered with
+      `actuator="ideal", wheel_friction=None`, its physics bit for bit.
+      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`.
     * v1: a step that meets every accuracy check but ends folded (|phi_k| reaches
       FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
       times (the finer substeps folded too). Only settings that can fold differ
@@ -97,7 +104,7 @@ class CommandTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "command"
-    id_prefix, version = "SnakeCommand", 1
+    id_prefix, version = "SnakeCommand", 2
     episode_metrics = {"mean_speed_error": ("speed_error", "mean_abs"),
                        "mean_yaw_rate_error": ("yaw_rate_error", "mean_abs")}
     baseline_name, baseline_controller = "steering", SteeringController

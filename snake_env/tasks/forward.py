@@ -1,4 +1,4 @@
-"""Run forward along +x: the task of ``snake_env/Snake{n}-v2``."""
+"""Run forward along +x: the task of ``snake_env/Snake{n}-v3``."""
 
 from __future__ import annotations
 
@@ -132,15 +132,18 @@ class ForwardTask(Task):
     `kinetic_energy` (J, eq. 22), `power` (W, mean power of all loads over the
     step: actuators, damping, limits; dK/dt), `actuator_power` (W, sum_k
     |T_k dphi_k| / dt, for the cost of transport), `sim_failure` (bool); with
-    `wheel_friction` given, `wheel_lateral_force` (n,) (N: the sideways force
-    each wheel exerts on its link, eq. 27's multiplier, from the step's final
-    state and held torques; `env.unwrapped.wheel_lateral_forces()` without it)
-    and `wheel_slip` (n,) (bool: |force| > `wheel_friction` m_k g); here
-    also `reward_forward`, `reward_ctrl`. Reset: `x_position`, `y_position`,
+    finite grip (`wheel_friction`, the default), `wheel_lateral_force` (n,) (N: the
+    sideways force each wheel exerts on its link, eq. 27's multiplier, from the
+    step's final state and held torques under the traction limit;
+    `env.unwrapped.wheel_lateral_forces()` without grip), `wheel_slip` (n,) (bool:
+    |force| > `wheel_friction` m_k g, which only the motion itself can cause: such
+    a wheel would slide, which the no-slip model does not follow) and
+    `traction_scale` (the share of the motors' torques the wheels let through,
+    1 = all); here also `reward_forward`, `reward_ctrl`. Reset: `x_position`, `y_position`,
     `distance_from_origin`, `kinetic_energy`.
 
     ## Arguments
-    `gym.make("snake_env/Snake5-v2", **kwargs)`; all are plain scalars so they
+    `gym.make("snake_env/Snake5-v3", **kwargs)`; all are plain scalars so they
     can come from YAML. Physical arguments (every task, `PhysicsConfig`):
 
     | Parameter | Default | Description |
@@ -156,8 +159,8 @@ class ForwardTask(Task):
     | `joint_limit_stiffness` | 20.0 | least barrier stiffness beyond the limit (N m/rad); raised to 10 * max_torque |
     | `joint_limit_damping` | 0.2 | barrier damper at that least stiffness (N m s/rad) |
     | `paper_model` | False | True: joint_damping = wheel_damping = 0, no limits (the paper's model) |
-    | `wheel_friction` | None | mu of the wheels on the floor (> 0); None: unlimited grip. Reported only (info `wheel_slip`); the no-slip model still holds |
-    | `actuator` | "ideal" | joint motors: "ideal" torque sources, or a DC-motor preset "servo", "xh430_w350", "dc_motor" (`snake_env.physics.actuators`): the torque T_k = max_torque * a_k is a command, clipped to stall_torque (1 - phidot_k / no_load_speed) above and -stall_torque (1 + phidot_k / no_load_speed) below, then to +-torque_limit |
+    | `wheel_friction` | 0.8 | mu of the wheels on the floor (> 0; rubber on concrete): the traction limit scales the motors' torques, on every substep, by the largest s <= 1 that keeps each wheel's sideways force within mu m_k g (or adds nothing where the motion alone exceeds it); None: unlimited grip (v2) |
+    | `actuator` | "servo" | joint motors: "ideal" torque sources (v2), or a DC-motor preset "servo" (1 N m, 3.14 rad/s), "xh430_w350", "dc_motor" (`snake_env.physics.actuators`): the torque T_k = max_torque * a_k is a command, clipped to stall_torque (1 - phidot_k / no_load_speed) above and -stall_torque (1 + phidot_k / no_load_speed) below, then to +-torque_limit |
     | `stall_torque`, `no_load_speed`, `torque_limit` | None | N m, rad/s, N m: override the preset's motor constants |
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
     | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
@@ -177,6 +180,13 @@ class ForwardTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v3: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
+      1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
+      mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
+      limit, instead of ideal torque sources and wheels that grip at any force
+      (docs/env.md). `snake_env/Snake{n}-v3` is still registered with
+      `actuator="ideal", wheel_friction=None`, its physics bit for bit.
+      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`.
     * v2: a step that meets every accuracy check but ends folded (|phi_k| reaches
       FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
       times (the finer substeps folded too). Only settings that can fold differ
@@ -198,15 +208,16 @@ class ForwardTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "forward"
-    id_prefix, version = "Snake", 2
+    id_prefix, version = "Snake", 3
     step_info_keys = ("reward_forward", "reward_ctrl")
     baseline_name = "serpenoid"
 
     @classmethod
     def make_baseline(cls, config, num_envs=1, gait=None, gaits=None, settings=None):
         """The searched serpenoid of ``gait`` (an env id of the gait file; default: the newest
-        ``snake_env/Snake{n}-v*`` of this n), run open loop in its own clock."""
-        params = load_params(gait, gaits)[0] if gait is not None else gait_for_links(config.n_links, gaits)[0]
+        ``snake_env/Snake{n}-v*`` of this n searched on this physics), run open loop in its own clock."""
+        params = (load_params(gait, gaits)[0] if gait is not None
+                  else gait_for_links(config.n_links, gaits, config.previous_physics)[0])
         return SerpenoidController(params, num_envs=num_envs, **controller_geometry(config))
 
     def evaluate(self, config, ctx: StepContext, state):

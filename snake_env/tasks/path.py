@@ -1,4 +1,4 @@
-"""Follow a path: a line, a circle or a sine (``snake_env/SnakePath{n}-v2``)."""
+"""Follow a path: a line, a circle or a sine (``snake_env/SnakePath{n}-v3``)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ class PathTask(Task):
     r"""Follow a planar path with the snake's centre of mass: a straight line, a circle or a sine.
 
     ## Description
-    The snake of `snake_env/Snake{n}-v2` (same physics, actions, start state;
+    The snake of `snake_env/Snake{n}-v3` (same physics, actions, start state;
     CM at the origin, heading near +x) follows a path given in its start
     frame, shifted sideways by a cross-track offset d = +-`initial_offset`
     (sign drawn at reset) so that the snake starts off the path:
@@ -37,11 +37,11 @@ class PathTask(Task):
     The heading is the mean link angle theta_bar (Liljebäck et al. 2011).
 
     ## Action Space
-    As `snake_env/Snake{n}-v2`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
+    As `snake_env/Snake{n}-v3`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
 
     ## Observation Space
     `Box(-inf, inf, (2 n + 6,), float64)`: the physics observation of
-    `Snake{n}-v2` (2 n + 2 entries), then:
+    `Snake{n}-v3` (2 n + 2 entries), then:
 
     | Num | Observation | Unit |
     |-----|-------------|------|
@@ -60,14 +60,14 @@ class PathTask(Task):
     `reward_ctrl`, `cross_track_error` (e, m), `path_speed` (v_t, m/s).
 
     ## Starting State
-    As `Snake{n}-v2`; the offset sign is drawn from the env's generator.
+    As `Snake{n}-v3`; the offset sign is drawn from the env's generator.
 
     ## Episode End
     - Termination: when |e| > `max_cross_track_error` (m).
     - Truncation: after 1000 steps (40 s), or on a simulator failure.
 
     ## Arguments
-    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, `energy_cost_weight`, and:
+    The physical arguments of `Snake{n}-v3`, `reset_noise_scale`, `energy_cost_weight`, and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|
@@ -81,6 +81,13 @@ class PathTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v3: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
+      1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
+      mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
+      limit, instead of ideal torque sources and wheels that grip at any force
+      (docs/env.md). `snake_env/SnakePath{n}-v2` is still registered with
+      `actuator="ideal", wheel_friction=None`, its physics bit for bit.
+      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`.
     * v2: a step that meets every accuracy check but ends folded (|phi_k| reaches
       FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
       times (the finer substeps folded too). Only settings that can fold differ
@@ -105,7 +112,7 @@ class PathTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "path"
-    id_prefix, version = "SnakePath", 2
+    id_prefix, version = "SnakePath", 3
     episode_metrics = {"mean_cross_track_error": ("cross_track_error", "mean_abs"),
                        "mean_path_speed": ("path_speed", "mean")}
     baseline_name, baseline_controller = "los", LineOfSightController

@@ -1,4 +1,4 @@
-"""Reach a goal position: a gymnasium_robotics-style GoalEnv (``snake_env/SnakeReach{n}-v1``)."""
+"""Reach a goal position: a gymnasium_robotics-style GoalEnv (``snake_env/SnakeReach{n}-v2``)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ class ReachTask(Task):
     r"""Move the snake's centre of mass to a goal on the plane (GoalEnv, HER-ready).
 
     ## Description
-    The snake of `snake_env/Snake{n}-v2` (same physics, actions, start state)
+    The snake of `snake_env/Snake{n}-v3` (same physics, actions, start state)
     must bring its whole mass-weighted centre of mass (CM) within
     `distance_threshold` of a goal drawn at reset. The env follows the
     `gymnasium_robotics.GoalEnv` convention without depending on it: a Dict
@@ -28,14 +28,14 @@ class ReachTask(Task):
     the step reward, so SB3's `HerReplayBuffer` can relabel goals.
 
     ## Action Space
-    As `snake_env/Snake{n}-v2`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
+    As `snake_env/Snake{n}-v3`: `Box(-1, 1, (n_links - 1,), float32)`, joint torques in units of `max_torque`.
 
     ## Observation Space
     `Dict`:
 
     | Key | Space | Content | Unit |
     |-----|-------|---------|------|
-    | `observation` | `Box(2 n + 2,)` | the physics observation of `Snake{n}-v2` (joint angles, heading cos/sin, V_1, thetadot_1, joint rates) | rad, -, m/s, rad/s |
+    | `observation` | `Box(2 n + 2,)` | the physics observation of `Snake{n}-v3` (joint angles, heading cos/sin, V_1, thetadot_1, joint rates) | rad, -, m/s, rad/s |
     | `achieved_goal` | `Box(2,)` | x, y of the whole snake's CM | m |
     | `desired_goal` | `Box(2,)` | x, y of the goal | m |
 
@@ -50,15 +50,15 @@ class ReachTask(Task):
     d <= `distance_threshold`; `info["goal_distance"]` is d (m).
 
     ## Starting State
-    As `Snake{n}-v2` (CM at the origin); the goal is drawn uniformly in an
+    As `Snake{n}-v3` (CM at the origin); the goal is drawn uniformly in an
     annulus around the origin: distance U(`goal_distance_range`) (m), direction U(-pi, pi).
 
     ## Episode End
     - Termination: on success when `terminate_on_success` (default True).
-    - Truncation: after 400 steps (16 s), or on a simulator failure (see `Snake{n}-v2`).
+    - Truncation: after 400 steps (16 s), or on a simulator failure (see `Snake{n}-v3`).
 
     ## Arguments
-    The physical arguments of `Snake{n}-v2`, `reset_noise_scale`, `energy_cost_weight`, and:
+    The physical arguments of `Snake{n}-v3`, `reset_noise_scale`, `energy_cost_weight`, and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|
@@ -68,6 +68,13 @@ class ReachTask(Task):
     | `terminate_on_success` | True | end the episode on success |
 
     ## Version History
+    * v2: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
+      1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
+      mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
+      limit, instead of ideal torque sources and wheels that grip at any force
+      (docs/env.md). `snake_env/SnakeReach{n}-v1` is still registered with
+      `actuator="ideal", wheel_friction=None`, its physics bit for bit.
+      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`.
     * v1: a step that meets every accuracy check but ends folded (|phi_k| reaches
       FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
       times (the finer substeps folded too). Only settings that can fold differ
@@ -82,7 +89,7 @@ class ReachTask(Task):
     terminate_on_success: bool = setting(True, "-", "bool", doc="end the episode on success")
 
     name = "reach"
-    id_prefix, version = "SnakeReach", 1
+    id_prefix, version = "SnakeReach", 2
     max_episode_steps = 400
     goal_env = True
     step_info_keys = ("reward_goal", "goal_distance", "is_success")

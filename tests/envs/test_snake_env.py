@@ -172,7 +172,7 @@ def test_paper_model_switches_off_damping_and_limits():
     assert env.joint_damping == 0.0 and env.wheel_damping == 0.0 and env.joint_limit is None
     assert env.params.joint_limit == 0.0
     assert np.all(env.params.joint_damping == 0.0) and np.all(env.params.wheel_damping == 0.0)
-    explicit = SnakeEnv(joint_damping=0.0, wheel_damping=0.0, joint_limit=None)
+    explicit = SnakeEnv(joint_damping=0.0, wheel_damping=0.0, joint_limit=None, actuator="ideal", wheel_friction=None)
     a = _rollout(env, 4, 100)
     b = _rollout(explicit, 4, 100)
     np.testing.assert_array_equal(a, b)

@@ -12,18 +12,19 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import snake_env  # noqa: F401
+from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS
 from snake_env.registration import REGISTERED_N_LINKS, registered_ids
 from snake_env.tasks import TASKS
 from snake_env.tasks.base import squared_norm
 
 # (id, kwargs) of every new task variant, on small snakes to keep the tests fast
 CASES = [
-    ("snake_env/SnakeCommand5-v1", {}),
-    ("snake_env/SnakeReach5-v1", {}),
-    ("snake_env/SnakeReach3-v1", {"reward_type": "dense"}),
-    ("snake_env/SnakePath5-v2", {"path_type": "line"}),
-    ("snake_env/SnakePath3-v2", {"path_type": "circle"}),
-    ("snake_env/SnakePath5-v2", {"path_type": "sine"}),
+    ("snake_env/SnakeCommand5-v2", {}),
+    ("snake_env/SnakeReach5-v2", {}),
+    ("snake_env/SnakeReach3-v2", {"reward_type": "dense"}),
+    ("snake_env/SnakePath5-v3", {"path_type": "line"}),
+    ("snake_env/SnakePath3-v3", {"path_type": "circle"}),
+    ("snake_env/SnakePath5-v3", {"path_type": "sine"}),
 ]
 IDS = [f"{env_id.split('/')[1]}-{'-'.join(map(str, kw.values())) or 'default'}" for env_id, kw in CASES]
 
@@ -41,28 +42,48 @@ def test_gymnasium_and_sb3_checkers_pass(env_id, kwargs):
 
 @pytest.mark.parametrize("task", TASKS)
 def test_registered_version_is_the_newest_of_the_version_history_and_older_ones_are_refused(task):
+    """The newest version and the one before (its physics pinned) are registered; older ones are refused."""
     prefix, version = TASKS[task].id_prefix, TASKS[task].version
     history = [int(v) for v in re.findall(r"^\s*\* v(\d+):", TASKS[task].__doc__, re.MULTILINE)]
     assert history and history[0] == max(history) == version
-    if version > 0:  # gymnasium names the newest version in its error
-        with pytest.raises(gym.error.DeprecatedEnv, match=f"{prefix}5-v{version}"):
-            gym.make(f"snake_env/{prefix}5-v{version - 1}")
+    assert gym.spec(f"snake_env/{prefix}5-v{version - 1}").kwargs["actuator"] == "ideal"
+    with pytest.raises(gym.error.DeprecatedEnv, match=f"{prefix}5-v{version}"):
+        gym.make(f"snake_env/{prefix}5-v{version - 2}")
 
 
 def test_every_family_is_registered_for_every_n_with_its_task_settings():
     ids = registered_ids()
-    assert len(ids) == len(TASKS) * (1 + len(REGISTERED_N_LINKS))
+    assert len(ids) == 2 * len(TASKS) * (1 + len(REGISTERED_N_LINKS))
     for task, cls in TASKS.items():
         prefix, version = cls.id_prefix, cls.version
         for n in REGISTERED_N_LINKS:
             spec = gym.spec(f"snake_env/{prefix}{n}-v{version}")
             assert spec.kwargs == {"task": task, "n_links": n}
+            assert gym.spec(f"snake_env/{prefix}{n}-v{version - 1}").kwargs == {
+                "task": task, "n_links": n, **PREVIOUS_VERSION_PHYSICS}
             assert spec.max_episode_steps == cls.max_episode_steps
             assert spec.entry_point.endswith("SnakeGoalEnv" if cls.goal_env else "SnakeEnv")
             assert spec.vector_entry_point == "snake_env.envs.vector:SnakeVectorEnv"
         assert ids[f"snake_env/{prefix}-v{version}"] == {"task": task}
-    env = gym.make("snake_env/SnakePath-v2", n_links=7)
+    env = gym.make("snake_env/SnakePath-v3", n_links=7)
     assert env.action_space.shape == (6,) and env.observation_space.shape == (20,)
+
+
+def test_the_previous_version_is_the_new_task_on_the_previous_physics():
+    """Snake5-v2 is Snake5-v3 with ideal torque sources and unlimited grip, step for step."""
+    actions = np.random.default_rng(0).uniform(-1, 1, (50, 4))
+    previous = gym.make("snake_env/Snake5-v2")
+    pinned = gym.make("snake_env/Snake5-v3", **PREVIOUS_VERSION_PHYSICS)
+    newest = gym.make("snake_env/Snake5-v3")
+    for env in (previous, pinned, newest):
+        env.reset(seed=0)
+    for a in actions:
+        obs, reward = previous.step(a)[:2]
+        obs_pinned, reward_pinned = pinned.step(a)[:2]
+        assert np.array_equal(obs, obs_pinned) and reward == reward_pinned
+        newest.step(a)
+    assert not np.array_equal(previous.unwrapped.state[0], newest.unwrapped.state[0])
+    assert newest.unwrapped.config.actuator == "servo" and newest.unwrapped.config.wheel_friction == 0.8
 
 
 def _rollout(env, seed, steps=60):

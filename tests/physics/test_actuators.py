@@ -4,6 +4,7 @@ errors for bad motor arguments."""
 
 import math
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -47,7 +48,8 @@ def test_compiled_sweep_applies_the_motor_to_the_command(rng, n):
 
 def test_ideal_actuator_is_the_v2_torque_source_bit_for_bit():
     rng = np.random.default_rng(4)
-    default, ideal = SnakeEnv(n_links=5), SnakeEnv(n_links=5, actuator="ideal")
+    default = gym.make("snake_env/Snake5-v2").unwrapped  # ideal torque sources by registration
+    ideal = SnakeEnv(n_links=5, actuator="ideal", wheel_friction=None)
     assert ideal.params.torque_limit == math.inf and ideal.params.substeps == 1
     for env in (default, ideal):
         env.reset(seed=4)
@@ -80,10 +82,11 @@ def test_a_driven_joint_does_not_outrun_the_no_load_speed():
 @pytest.mark.parametrize("kwargs, match", [
     (dict(actuator="servo", stall_torque=-1.0), "stall_torque must be a finite number > 0"),
     (dict(actuator="stepper"), "actuator must be one of"),
-    (dict(stall_torque=2.0), "stall_torque needs a motor"),
+    (dict(actuator="ideal", stall_torque=2.0), "stall_torque needs a motor"),
     (dict(actuator="dc_motor", stall_torque=2.0), "actuator='dc_motor' needs no_load_speed"),
     (dict(actuator="servo", no_load_speed=0.0), "no_load_speed must be a finite number > 0"),
-    (dict(actuator="servo", paper_model=True), "paper_model=True has ideal torque sources"),
+    (dict(actuator="xh430_w350", paper_model=True), "paper_model=True fixes .* actuator='ideal'"),
+    (dict(wheel_friction=0.5, paper_model=True), "paper_model=True fixes .* wheel_friction=None"),
 ])
 def test_bad_motor_arguments_are_one_line_errors(kwargs, match):
     with pytest.raises(ValueError, match=match) as info:

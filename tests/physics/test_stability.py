@@ -19,6 +19,7 @@ from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESI
 from snake_env.physics.config import max_stable_sim_dt
 from snake_env.envs.snake import SnakeEnv
 from snake_env.envs.vector import SnakeVectorEnv
+from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS as IDEAL  # ideal torque sources, unlimited grip
 
 KWARG_NAMES = ("sim_dt", "joint_limit", "max_torque", "mass", "length", "inertia", "energy_tolerance",
                "max_refinements", "integrator", "paper_model", "frame_skip")
@@ -123,7 +124,7 @@ def test_refinement_meets_its_tolerance_against_a_fine_reference_on_a_stiff_case
     """max_torque = 15 N m at sim_dt = 0.01 s (the largest torque accepted there; stiff barrier),
     bang-bang torques: against RK4 at sim_dt / 256, the refined steps keep the energy balance,
     their typical error is within the tolerance and far below plain RK4's."""
-    kwargs = dict(n_links=5, max_torque=15.0)
+    kwargs = dict(n_links=5, max_torque=15.0, **IDEAL)
     reference = SnakeEnv(**kwargs, sim_dt=0.01 / 256, frame_skip=4 * 256, integrator="rk4")
     refined = SnakeEnv(**kwargs, error_tolerance=1e-3)
     plain = SnakeEnv(**kwargs, integrator="rk4", energy_tolerance=1.0)

@@ -8,6 +8,7 @@ from snake_env.dynamics import rk4_step
 from snake_env import physics
 from snake_env.envs import SnakeEnv
 from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_WORK, AUX_X, AUX_Y
+from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS as IDEAL  # ideal torque sources, unlimited grip
 
 
 def _random_states(rng, n, batch):
@@ -23,7 +24,7 @@ def _random_states(rng, n, batch):
 @pytest.mark.parametrize("method", ["kane_paper", "kane"])
 def test_one_env_step_equals_frame_skip_numpy_rk4_steps(rng, n, method):
     """No joint limits: the compiled env step and the numpy RK4 on another formulation agree."""
-    env = SnakeEnv(n_links=n, joint_limit=None, joint_damping=0.05, wheel_damping=0.3)
+    env = SnakeEnv(n_links=n, joint_limit=None, joint_damping=0.05, wheel_damping=0.3, **IDEAL)
     q, u = _random_states(rng, n, 1)
     q, u = q[0], u[0]
     torques = rng.uniform(-1, 1, n - 1)
@@ -103,7 +104,7 @@ def test_energy_residual_converges_at_fourth_order():
 def test_damping_dissipates():
     """Damped snake, no torques, no limits: K decays and the loads' work is negative
     (for 30 steps: coasting on, a joint of this snake folds at step 34, a sim_failure)."""
-    env = SnakeEnv(n_links=5, joint_limit=None)
+    env = SnakeEnv(n_links=5, joint_limit=None, **IDEAL)
     q, u, _, aux = physics.reset(env.params, np.array([0.1, -0.2, 0.3, -0.1, 0.2, 1.0, 2.0]))
     k = [aux[AUX_KINETIC]]
     for _ in range(30):
@@ -116,8 +117,8 @@ def test_damping_dissipates():
 def test_soft_joint_limit_holds_under_full_torque():
     """Full torque on every joint for 4 s: the joints bend to about the limit and stop
     (static overshoot max_torque / stiffness), while without limits they fold over."""
-    limited = SnakeEnv(n_links=4)
-    free = SnakeEnv(n_links=4, joint_limit=None)
+    limited = SnakeEnv(n_links=4, **IDEAL)
+    free = SnakeEnv(n_links=4, joint_limit=None, **IDEAL)
     results = []
     for env in (limited, free):
         q, u, _, _ = physics.reset(env.params, np.zeros(6) + 1e-3)

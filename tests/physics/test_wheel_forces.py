@@ -1,5 +1,6 @@
 """info["wheel_lateral_force"]: the compiled backward sweep at the step's final state and held torques
-equals eq. 27's multipliers (Lagrange and Newton–Euler) while no joint limit acts; wheel_slip compares it
+equals eq. 27's multipliers (Lagrange and Newton–Euler) of the torques the traction limit lets through while
+no joint limit acts; wheel_slip compares it
 with mu m_k g; the single and the vector env report the same forces."""
 
 import gymnasium as gym
@@ -13,7 +14,7 @@ from snake_env.physics import GRAVITY
 
 @pytest.mark.parametrize("n_links", [3, 5, 12])
 def test_reported_forces_are_the_multipliers_of_eq_27(n_links):
-    env = SnakeEnv(n_links=n_links, wheel_friction=0.8)
+    env = SnakeEnv(n_links=n_links, wheel_friction=0.8, actuator="ideal")  # the torques: scale * commands
     model, limit = env.unwrapped.model, env.unwrapped.joint_limit
     env.reset(seed=1)
     rng = np.random.default_rng(1)
@@ -25,8 +26,10 @@ def test_reported_forces_are_the_multipliers_of_eq_27(n_links):
         if np.any(np.abs(np.diff(q[:n_links])) >= limit):
             continue  # the barrier acts: not in the dynamics package's formulations
         qdot = lagrange.consistent_qdot(model, q, u)
+        # the traction limit lets through the share info["traction_scale"] of the torques (test_traction.py)
+        torques = info["traction_scale"] * action * env.max_torque
         for formulation in (lagrange, newton_euler):
-            _, reference = formulation.qddot(model, q, qdot, action * env.max_torque, with_multipliers=True)
+            _, reference = formulation.qddot(model, q, qdot, torques, with_multipliers=True)
             scale = np.max(np.abs(reference)) + 1.0
             assert np.max(np.abs(info["wheel_lateral_force"] - reference)) / scale < 1e-9
         load = np.broadcast_to(env.mass, (n_links,)) * GRAVITY

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from snake_env.train.evaluate import main
+from tests.newest_ids import newest_id
 
 REPO = Path(__file__).resolve().parents[2]
-ENV = "snake_env/Snake3-v2"
+ENV = newest_id("Snake3")
 
 
 def evaluate_json(tmp_path, *argv) -> dict:

@@ -49,7 +49,7 @@ def test_zoo_builds_the_configured_callbacks():
     """``callback`` is RL Zoo's key in its own form; the zoo's loader builds ours from it."""
     from snake_env.train.callbacks import ResidualBurnIn
 
-    entry = zoo_hyperparams("sac")[newest_id("Snake12")]
+    entry = zoo_hyperparams("sac")["snake_env/Snake12-v2"]  # the residual entry with its burn-in callback
     rl_zoo3_utils = pytest.importorskip("rl_zoo3.utils")
     (callback,) = rl_zoo3_utils.get_callback_list(entry)
     assert isinstance(callback, ResidualBurnIn) and callback.burn_in_steps > 0
