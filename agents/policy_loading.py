@@ -9,7 +9,9 @@ Statistics are loaded for evaluation (``training=False``,
 
 Every failure (missing file, not a zip, corrupt archive, algorithm unknown,
 spaces that do not match the env, e.g. another ``n_links``) raises
-:class:`PolicyLoadError` with a one-line message.
+:class:`PolicyLoadError` with a one-line message. A policy that runs on any n
+(one with ``for_spaces``, the shared per-joint policy of ``snake_env.train.joint_policy``)
+is rebuilt with the same weights for the env's n instead.
 """
 
 from __future__ import annotations
@@ -102,11 +104,17 @@ def detect_algo(model_path: Path) -> str:
         return "sac"
     if module.startswith("stable_baselines3.common.policies") and "clip_range" in data and "n_epochs" in data:
         return "ppo"
+    if module.startswith("snake_env."):  # a policy of this package (the shared per-joint one): by hyperparameters
+        if "clip_range" in data and "n_epochs" in data:
+            return "ppo"
+        if "target_entropy" in data and "tau" in data:
+            return "sac"
     raise PolicyLoadError(f"{model_path} holds a {module} policy that is not one of {list(SUPPORTED_ALGOS)}")
 
 
 def load_normalizer(path: Path, obs_shape: tuple):
-    """VecNormalize statistics for evaluation: ``training=False, norm_reward=False``."""
+    """VecNormalize statistics for evaluation: ``training=False, norm_reward=False``; None when they
+    normalize rewards only (``norm_obs=False``), as nothing is left to apply."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     try:
@@ -118,6 +126,9 @@ def load_normalizer(path: Path, obs_shape: tuple):
         raise PolicyLoadError(f"{path} holds a {type(normalizer).__name__}, not VecNormalize statistics")
     normalizer.training = False
     normalizer.norm_reward = False
+    if not normalizer.norm_obs:
+        # reward statistics only (VecNormalize then has no obs_rms; evaluation never normalizes rewards)
+        return None
     if isinstance(normalizer.obs_rms, dict):  # a Dict observation (goal tasks): one statistic per key
         if obs_shape is not None:
             raise PolicyLoadError(f"{path} normalizes Dict observations, the env gives a Box of shape {obs_shape}")
@@ -151,6 +162,9 @@ def load_policy(target, observation_space, action_space, config: dict | None = N
         raise PolicyLoadError(f"cannot load {algo} model {files.model}: {_first_line(exc)}") from None
     from gymnasium import spaces
 
+    if transferable(model) and (model.observation_space.shape != getattr(observation_space, "shape", None)
+                                or model.action_space.shape != action_space.shape):
+        model = for_spaces(model, files.model, observation_space, action_space)
     if isinstance(observation_space, spaces.Dict) or isinstance(model.observation_space, spaces.Dict):
         if model.observation_space != observation_space:
             raise PolicyLoadError(f"{files.model} expects observations {model.observation_space}, the env gives "
@@ -173,3 +187,23 @@ def load_policy(target, observation_space, action_space, config: dict | None = N
                               f"VecNormalize statistics are missing beside it")
     return LoadedPolicy(model=model, algo=algo, files=files, config=dict(config or {}), normalizer=normalizer)
 
+
+def transferable(model) -> bool:
+    """Whether the model's policy runs on snakes of any n (the shared per-joint policy has
+    ``for_spaces``; an MLP's input size fixes n)."""
+    return callable(getattr(model.policy, "for_spaces", None))
+
+
+def for_spaces(model, path: Path, observation_space, action_space):
+    """The model with its policy rebuilt, same weights, for an env of another n (see
+    :mod:`snake_env.train.joint_policy`): padded or unpadded, any number of joints."""
+    try:
+        policy = model.policy.for_spaces(observation_space, action_space)
+    except ValueError as exc:
+        raise PolicyLoadError(f"{path} cannot run on this env: {_first_line(exc)}") from None
+    model.policy = policy
+    model.observation_space = observation_space
+    model.action_space = action_space
+    if hasattr(model, "_create_aliases"):  # SAC's actor / critic attributes
+        model._create_aliases()
+    return model

@@ -49,7 +49,12 @@ META_DEFAULTS = {
     # extra SB3 callbacks, RL Zoo's key and form: a dotted class name, or a list of names and
     # one-key mappings {dotted name: kwargs}, e.g. [{snake_env.train.callbacks.ResidualBurnIn: {burn_in_steps: 40000}}]
     "callback": None,
+    # several snake sizes in one run (policy JointPolicy only): a list of link counts, e.g. [5, 8, 12];
+    # snake_env.train.multi_n_env pads them to the longest
+    "n_links_set": None,
 }
+# the shared per-joint policy (snake_env.train.joint_policy), for PPO and SAC
+JOINT_POLICY = "JointPolicy"
 RUN_KEYS = ("algo", "env_id", "seed")
 VEC_ENV_KINDS = ("batched", "dummy")
 NORMALIZE_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon")
@@ -296,6 +301,7 @@ def validate(config: dict) -> dict:
         raise ConfigError(f"env_wrapper {goal_derived} does not combine with replay_buffer_class HerReplayBuffer "
                           f"(it reads the goal that HER relabels)")
     normalize_options(config["normalize"], None)
+    check_joint_policy(config)
     for key in SCHEDULE_KEYS:
         value = config.get(key)
         if isinstance(value, str):
@@ -317,6 +323,51 @@ def validate(config: dict) -> dict:
             raise ConfigError(f"callback ResidualBurnIn residual_penalty, learn_log_std and actor_lr_scale are SAC "
                               f"options, not {algo}")
     return config
+
+
+def check_joint_policy(config: dict) -> None:
+    """One-line ConfigErrors for ``policy: JointPolicy`` options and ``n_links_set`` (see
+    :mod:`snake_env.train.joint_policy` and :mod:`snake_env.train.multi_n_env`)."""
+    sizes = config.get("n_links_set")
+    if config["policy"] != JOINT_POLICY:
+        if sizes is not None:
+            raise ConfigError(f"n_links_set needs policy {JOINT_POLICY} (it masks the padded joints), "
+                              f"got policy {config['policy']!r}")
+        return
+    from snake_env.train.joint_policy import check_options
+
+    options = policy_kwargs_dict(config["policy_kwargs"])
+    act = options.get("activation_fn")
+    if act is not None:
+        if act not in ACTIVATIONS:
+            raise ConfigError(f"policy_kwargs.activation_fn must be one of {sorted(ACTIVATIONS)}, got {act!r}")
+        options["activation_fn"] = None  # a valid name; the class is filled in by torch_policy_kwargs
+    try:
+        check_options(config["algo"], options)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    normalize = normalize_options(config["normalize"], None)
+    if normalize is not None and normalize.get("norm_obs", True):
+        raise ConfigError(f"policy {JOINT_POLICY} reads raw observations (fixed scales shared by every joint, so "
+                          f"one network runs on any n); set normalize norm_obs false, e.g. "
+                          f"--set normalize.norm_obs=false")
+    if config.get("use_sde"):
+        raise ConfigError(f"policy {JOINT_POLICY} has no gSDE; set use_sde: false")
+    if sizes is not None:
+        from snake_env.train.multi_n_env import check_n_links_set
+
+        try:
+            config["n_links_set"] = check_n_links_set(sizes)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        if config["vec_env"] != "batched" or config["env_wrapper"]:
+            raise ConfigError("n_links_set needs vec_env batched and no env_wrapper (the padding reads the "
+                              "forward task's own observation)")
+        if "n_links" in config["env_kwargs"]:
+            raise ConfigError(f"env_kwargs n_links conflicts with n_links_set {config['n_links_set']}; remove one")
+        if config["n_envs"] < len(config["n_links_set"]):
+            raise ConfigError(f"n_envs must be at least the number of sizes in n_links_set "
+                              f"({len(config['n_links_set'])}), got {config['n_envs']}")
 
 
 def callback_specs(value) -> list[tuple[str, dict]]:
@@ -426,6 +477,10 @@ def policy_for(config: dict, observation_space) -> str:
     policy = config["policy"]
     if isinstance(observation_space, spaces.Dict) and policy == "MlpPolicy":
         return "MultiInputPolicy"
+    if policy == JOINT_POLICY:
+        from snake_env.train.joint_policy import policy_class
+
+        return policy_class(config["algo"])
     return policy
 
 
@@ -442,6 +497,13 @@ def torch_policy_kwargs(config: dict) -> dict:
         if not hasattr(nn, name) or name not in ACTIVATIONS.values():
             raise ConfigError(f"policy_kwargs.activation_fn must be one of {sorted(ACTIVATIONS)}, got {act!r}")
         kwargs["activation_fn"] = getattr(nn, name)
+    if config.get("policy") == JOINT_POLICY and kwargs.get("layout") is None:
+        from snake_env.train.joint_features import layout_for_id
+
+        try:
+            kwargs["layout"] = layout_for_id(config["env_id"], dict(config.get("env_kwargs") or {}))
+        except ValueError as exc:
+            raise ConfigError(f"policy {JOINT_POLICY} on {config['env_id']}: {str(exc).splitlines()[0]}") from None
     extractor = kwargs.get("features_extractor_class")
     if isinstance(extractor, str):
         from snake_env.train.extractors import EXTRACTORS

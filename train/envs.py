@@ -27,6 +27,7 @@ def _make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
     ``vec_env: batched`` steps all copies with one call of the batched
     dynamics (SnakeSB3VecEnv over the env's vector entry point);
     ``dummy`` loops over single envs (SB3 DummyVecEnv), for any gymnasium id.
+    ``n_links_set`` makes one :class:`~snake_env.train.multi_n_env.MultiNVecEnv` of several sizes.
     """
     import gymnasium as gym
     from gymnasium.vector import AutoresetMode
@@ -37,7 +38,12 @@ def _make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
     env_id = config["env_id"]
     env_kwargs = dict(config["env_kwargs"])
     env_wrapper = config.get("env_wrapper")
-    if config["vec_env"] == "batched":
+    if config.get("n_links_set"):
+        from snake_env.train.multi_n_env import MultiNVecEnv
+
+        venv = MultiNVecEnv(env_id, config["n_links_set"], n_envs, **env_kwargs)
+        venv.seed(seed)
+    elif config["vec_env"] == "batched":
         from snake_env.agents.sb3_vec_env import SnakeSB3VecEnv
 
         if env_wrapper:

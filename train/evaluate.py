@@ -9,6 +9,7 @@ Examples::
     snake-eval --baseline steering --env snake_env/SnakeCommand5-v1
     snake-eval --baseline homing --env snake_env/SnakeReach5-v1
     snake-eval --onnx policy.onnx --episodes 5   # onnxruntime only: neither torch nor SB3 is imported
+    snake-eval runs/multi_n_run --env snake_env/Snake20-v2   # a JointPolicy run on an n it was not trained on
 
 The env id, env kwargs and VecNormalize statistics come from the run's
 ``config.yaml`` and the statistics file saved beside the model; the
@@ -53,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="evaluate the env's task baseline instead of a policy: " +
                              "; ".join(f"{name} ({task} task)" for name, task in shipped_baselines().items()))
     parser.add_argument("--onnx", help="evaluate a policy exported by snake-export (onnxruntime only, no torch)")
-    parser.add_argument("--env", dest="env_id", help="env id (required with --baseline; for a model it must match)")
+    parser.add_argument("--env", dest="env_id", help="env id (required with --baseline; for a model it must match, "
+                                                     "except for policy JointPolicy, which runs on any n)")
     parser.add_argument("--episodes", type=int, default=5, help="number of episodes (default 5)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--deterministic", dest="deterministic", action="store_true", default=True,
@@ -319,7 +321,8 @@ def check_outputs(args) -> None:
 def policy_actor(args):
     """(env_id, env_kwargs, act(obs), reset(), description) of a saved policy."""
     from snake_env.agents.policy_loading import PolicyLoadError, load_policy, locate
-    from snake_env.train.config import ConfigError, load_run_config
+    from snake_env.train.config import JOINT_POLICY, ConfigError, load_run_config
+    from snake_env.train.joint_features import LayoutError, check_env_layout
 
     try:
         files = locate(args.target)
@@ -331,14 +334,19 @@ def policy_actor(args):
     env_id = args.env_id or config.get("env_id")
     if env_id is None:
         raise EvalError(f"no config.yaml beside {files.model}; pass --env ID")
-    if args.env_id and config.get("env_id") not in (None, args.env_id):
-        raise EvalError(f"{files.model} was trained on {config['env_id']}, not {args.env_id}")
-    env_kwargs = dict(config.get("env_kwargs") or {})
+    any_n = config.get("policy") == JOINT_POLICY  # the shared per-joint policy runs on snakes of any n
+    if args.env_id and config.get("env_id") not in (None, args.env_id) and not any_n:
+        raise EvalError(f"{files.model} was trained on {config['env_id']}, not {args.env_id} (only policy "
+                        f"{JOINT_POLICY} runs on another env)")
+    # --env-kwarg counts here too: n_links=16 on Snake-v2 rebuilds a JointPolicy for 16 links
+    env_kwargs = {**dict(config.get("env_kwargs") or {}), **parse_env_kwargs(getattr(args, "env_kwargs", None))}
     env_wrapper = config.get("env_wrapper")
     env = make_env(env_id, env_kwargs, render=False, env_wrapper=env_wrapper)
     try:
         loaded = load_policy(files.model, env.observation_space, env.action_space, config)
-    except PolicyLoadError as exc:
+        if any_n:
+            check_env_layout(loaded.model.policy.layout, env, env_id)
+    except (PolicyLoadError, LayoutError) as exc:
         raise EvalError(str(exc)) from None
     finally:
         env.close()

@@ -5,6 +5,7 @@ Examples::
     snake-export runs/snake5_ppo --out policy.onnx
     snake-export runs/snake5_ppo/checkpoints/model_200000_steps.zip --out policy.onnx
     python -m snake_env.train.export runs/snake5_sac --out sac.onnx
+    snake-export runs/multi_n_run --env snake_env/Snake20-v2 --out snake20.onnx   # JointPolicy: a graph for n = 20
 
 The graph reproduces ``model.predict(normalize(obs), deterministic=True)`` of
 the evaluation path (:mod:`snake_env.agents.policy_loading`), so it runs where neither
@@ -66,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("target", help="run directory or model .zip written by snake-train")
     parser.add_argument("--out", required=True, help="output path, must end with .onnx")
     parser.add_argument("--env", dest="env_id", help="env id (needed when no config.yaml is beside the model; "
-                                                     "otherwise it must match the run's)")
+                                                     "otherwise it must match the run's, except for policy "
+                                                     "JointPolicy, which exports a graph for this env's n)")
     parser.add_argument("--opset", type=int, default=OPSET, help=f"ONNX opset (default {OPSET})")
     return parser
 
@@ -89,7 +91,8 @@ def load_for_export(target, env_id=None):
 
     import snake_env  # noqa: F401  (registers the ids)
     from snake_env.agents.policy_loading import PolicyLoadError, detect_algo, load_policy, locate
-    from snake_env.train.config import ConfigError, load_run_config
+    from snake_env.train.config import JOINT_POLICY, ConfigError, load_run_config
+    from snake_env.train.joint_features import LayoutError, check_env_layout
     from snake_env.wrappers import wrap_env
 
     try:
@@ -98,8 +101,10 @@ def load_for_export(target, env_id=None):
         config = load_run_config(files.config) if files.config is not None else {}
     except (PolicyLoadError, ConfigError) as exc:
         raise ExportError(str(exc)) from None
-    if env_id and config.get("env_id") not in (None, env_id):
-        raise ExportError(f"{files.model} was trained on {config['env_id']}, not {env_id}")
+    any_n = config.get("policy") == JOINT_POLICY  # the shared per-joint policy: a graph for another n
+    if env_id and config.get("env_id") not in (None, env_id) and not any_n:
+        raise ExportError(f"{files.model} was trained on {config['env_id']}, not {env_id} (only policy "
+                          f"{JOINT_POLICY} exports for another env)")
     env_id = env_id or config.get("env_id")
     if env_id is None:
         raise ExportError(f"no config.yaml beside {files.model}; pass --env ID")
@@ -119,9 +124,11 @@ def load_for_export(target, env_id=None):
                               f"{type(env.action_space).__name__} actions; export supports flat Box observations "
                               f"(or a Dict of them) and Box actions")
         loaded = load_policy(files.model, env.observation_space, env.action_space, config)
+        if any_n:
+            check_env_layout(loaded.model.policy.layout, env, env_id)
         n_links = int(getattr(env.unwrapped, "n_links", env.action_space.shape[0] + 1))
         return loaded, env_id, env_kwargs, env_wrapper, env.observation_space, env.action_space, n_links
-    except PolicyLoadError as exc:
+    except (PolicyLoadError, LayoutError) as exc:
         raise ExportError(str(exc)) from None
     finally:
         env.close()
@@ -180,6 +187,8 @@ def policy_graph(loaded, observation_space, action_space):
             obs = inputs[0] if self.keys is None else dict(zip(self.keys, inputs))
             if self.is_sac:
                 mean_actions, _, _ = self.policy.actor.get_action_dist_params(obs)
+            elif hasattr(self.policy, "action_mean"):  # the shared per-joint policy (snake_env.train.joint_policy)
+                mean_actions = self.policy.action_mean(obs)
             else:
                 features = self.policy.extract_features(obs, self.policy.pi_features_extractor)
                 latent_pi = self.policy.mlp_extractor.forward_actor(features)

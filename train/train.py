@@ -170,7 +170,9 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar=True, verbose:
             raise cfg.ConfigError(f"--resume: no checkpoint (checkpoints/model_<steps>_steps.zip) in {run_dir}")
     env_seed = config["seed"] + (start[0] if start else 0)
     venv = make_vec_env(config, n_envs, env_seed)
-    eval_env = make_vec_env(config, min(config["n_eval_episodes"], 8), config["seed"] + 10_000)
+    # at least one eval env per size of a multi-n run
+    eval_envs = max(min(config["n_eval_episodes"], 8), len(config.get("n_links_set") or ()))
+    eval_env = make_vec_env(config, eval_envs, config["seed"] + 10_000)
     eval_env = wrap_normalize(eval_env, config, training=False)
 
     if start is None:
