@@ -41,3 +41,12 @@ def test_every_locomotion_id_has_a_searched_serpenoid():
     assert not missing, f"configs/serpenoid.yaml has no gait for {missing} (run: python -m snake_env.agents.search --env ID)"
     for env_id in newest_locomotion_ids():
         assert gaits[env_id]["search"]["mean_forward_velocity"] > 0.0, env_id
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_newest_locomotion_entries_learn_from_plain_joint_torques(algo):
+    """No gait prior (residual, steering, CPG, joint targets) between the shipped policy and the torques of
+    the newest forward ids; the residual modes stay opt-in (and in the previous ids' entries)."""
+    for env_id in newest_locomotion_ids():
+        config = build_config(algo, env_id)
+        assert not config.get("env_wrapper"), (env_id, config.get("env_wrapper"))
