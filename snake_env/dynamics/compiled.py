@@ -106,6 +106,12 @@ def inverse_room(limit):
     return 1.0 / (room if room > 1e-3 else 1e-3)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def solve_eq8(M00, M01, M11, det, r0, r1):
+    """(udot_1, udot_2) of eq. 8, M udot = r, for the symmetric 2x2 M of determinant ``det``."""
+    return (M11 * r0 - M01 * r1) / det, (M00 * r1 - M01 * r0) / det
+
+
 @njit(cache=True, nogil=True)
 def derivatives(model, q, u, torques, dq, du, scale=1.0):
     """Write qdot into dq (n+2,), udot into du (2,); return dK/dt (W).
@@ -236,8 +242,7 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
         W = nW
         Wb = nWb
     det = M00 * M11 - M01 * M01
-    du[0] = (M11 * r0 - M01 * r1) / det
-    du[1] = (M00 * r1 - M01 * r0) / det
+    du[0], du[1] = solve_eq8(M00, M01, M11, det, r0, r1)
     dq[n] = u[0] * math.cos(q[0])
     dq[n + 1] = u[0] * math.sin(q[0])
     return power, M00, M01, M11, ra0, ra1, pa, r0, r1
@@ -279,8 +284,7 @@ def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0
     n = m.shape[0]
     power, M00, M01, M11, ra0, ra1, pa, r0, r1 = _kane_sweep(model, q, u, torques, dq, du, links, True, 0.0, True)
     det = M00 * M11 - M01 * M01
-    g0 = (M11 * ra0 - M01 * ra1) / det
-    g1 = (M00 * ra1 - M01 * ra0) / det
+    g0, g1 = solve_eq8(M00, M01, M11, det, ra0, ra1)
     du0 = du[0]
     du1 = du[1]
     # pin forces (along e_k, e_k_perp in link k's frame) of the two right-hand sides
@@ -323,13 +327,11 @@ def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0
     if du_old.shape[0] == 2:
         r0_old = r0 + old_scale * ra0
         r1_old = r1 + old_scale * ra1
-        du_old[0] = (M11 * r0_old - M01 * r1_old) / det
-        du_old[1] = (M00 * r1_old - M01 * r0_old) / det
+        du_old[0], du_old[1] = solve_eq8(M00, M01, M11, det, r0_old, r1_old)
     # eq. 8 at the scale, as the lane kernel computes it (_traction_lanes)
     r0 = r0 + scale * ra0
     r1 = r1 + scale * ra1
-    du[0] = (M11 * r0 - M01 * r1) / det
-    du[1] = (M00 * r1 - M01 * r0) / det
+    du[0], du[1] = solve_eq8(M00, M01, M11, det, r0, r1)
     for k in range(n):
         lam[k] = links[k, 12] + scale * links[k, 13]
     return power + scale * pa, scale
@@ -855,16 +857,14 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
         r1 = s[o + _B_R1 + l]
         power = s[o + _B_PW + l]
         det = M00 * M11 - M01 * M01
-        du0 = (M11 * r0 - M01 * r1) / det
-        du1 = (M00 * r1 - M01 * r0) / det
+        du0, du1 = solve_eq8(M00, M01, M11, det, r0, r1)
         if estimate == 1:
             k5u0 = du0
             k5u1 = du1
             if traction:  # k5 at the finished substep's own scale (see traction_derivatives)
                 r0 = s[o + _B_DP0 + l]
                 r1 = s[o + _B_DP1 + l]
-                k5u0 = (M11 * r0 - M01 * r1) / det
-                k5u1 = (M00 * r1 - M01 * r0) / det
+                k5u0, k5u1 = solve_eq8(M00, M01, M11, det, r0, r1)
             e0 = abs(sixth * (s[_H_K4U0 + l] - k5u0)) * inv_tol / (abs(s[_H_U0 + l]) + v_ref)
             e1 = abs(sixth * (s[_H_K4U1 + l] - k5u1)) * inv_tol / (abs(s[_H_U1 + l]) + 1.0)
             e = e0 if e0 > e1 else e1
@@ -905,10 +905,8 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes):
         ra0 = s[o + _B_RA0 + l]
         ra1 = s[o + _B_RA1 + l]
         det = M00 * M11 - M01 * M01
-        s[o + _B_DP0 + l] = (M11 * r0 - M01 * r1) / det
-        s[o + _B_DP1 + l] = (M00 * r1 - M01 * r0) / det
-        s[o + _B_G0 + l] = (M11 * ra0 - M01 * ra1) / det
-        s[o + _B_G1 + l] = (M00 * ra1 - M01 * ra0) / det
+        s[o + _B_DP0 + l], s[o + _B_DP1 + l] = solve_eq8(M00, M01, M11, det, r0, r1)
+        s[o + _B_G0 + l], s[o + _B_G1 + l] = solve_eq8(M00, M01, M11, det, ra0, ra1)
         s[o + _B_FA + l] = 0.0
         s[o + _B_FP + l] = 0.0
         s[o + _B_GA + l] = 0.0
