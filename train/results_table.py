@@ -6,7 +6,9 @@ Expects run directories ``<root>/<Env>__<algo>__s<seed>/`` made by snake-train.
 Each final model is evaluated with snake-eval (deterministic; and stochastic
 and the EvalCallback's best model as extra columns), each env's serpenoid
 gait with ``snake-eval --baseline serpenoid`` on the same episode seeds.
-Results are cached as ``eval_*.json`` in every run directory.
+Results are cached as ``eval_*.json`` in every run directory. The tables give, per algorithm and id,
+the interquartile mean over seeds of the speed and of its ratio to the serpenoid with 95 %
+stratified-bootstrap CIs (rliable, ``pip install -e ".[stats]"``), then every seed.
 
 With ``--images`` it also draws ``speed_vs_n.png``: the learned runs' speed
 and the serpenoid's (every id of ``configs/serpenoid.yaml`` named SnakeN)
@@ -56,15 +58,6 @@ def timesteps(run_dir: Path) -> int:
     return max(steps, default=0)
 
 
-def fmt(values) -> str:
-    values = np.asarray(values, dtype=float)
-    if values.size == 0:
-        return "-"
-    if values.size == 1:
-        return f"{values[0]:.2f}"
-    return f"{values.mean():.2f} ± {values.std():.2f}"
-
-
 def speeds_from_csv(path, label: str, into=None) -> dict:
     """{(algo, "ALGO (label)"): {n: [speed per seed]}} of the SnakeN rows of a CSV with columns env,
     algo, seed, speed (m/s), added to ``into`` if given; other ids (Snake-v2, tasks) are skipped."""
@@ -100,6 +93,55 @@ def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=No
         speeds_from_csv(measured_csv, "this table", into=learned)
     earlier = speeds_from_csv(earlier_csv, "earlier campaign") if earlier_csv else None
     plot_speed_vs_n(learned, serpenoid, path, earlier)
+
+
+def print_tables(runs: dict, baselines: dict) -> None:
+    """One summary table per algorithm (IQM over seeds of the ratio to the serpenoid, with its 95 %
+    stratified-bootstrap CI: train/aggregate.py), then the per-seed table."""
+    from snake_env.train.aggregate import iqm
+
+    for algo in sorted({algo for _, algo in runs}):
+        cells = {env: sorted(items, key=lambda r: r["seed"]) for (env, a), items in runs.items() if a == algo}
+        print(f"{algo.upper()}: forward speed over seeds, interquartile mean [95 % CI]")
+        print()
+        print("| env | seeds | v_x IQM (m/s) | ratio to serpenoid, IQM | lowest seed's ratio "
+              "| seeds >= 0.8x | serpenoid v_x (m/s) | wall time (min, median) |")
+        print("|---|---|---|---|---|---|---|---|")
+        ratios = {}
+        for env, items in sorted(cells.items(), key=lambda kv: size_key(kv[0])):
+            speed = np.array([r["det"]["mean_forward_velocity"] for r in items])
+            serp = baselines[env]["mean_forward_velocity"]
+            ratios[env] = speed / serp
+            print(f"| {env} | {', '.join(str(r['seed']) for r in items)} | {iqm(speed)} | {iqm(ratios[env])} "
+                  f"| {ratios[env].min():.2f} | {int(np.sum(ratios[env] >= 0.8))} of {len(items)} | {serp:.3f} "
+                  f"| {np.median([r['wall'] for r in items]) / 60:.1f} |")
+        counts = {len(r) for r in ratios.values()}
+        if len(ratios) > 1 and len(counts) == 1:  # the stratified bootstrap needs a full (runs, tasks) matrix
+            matrix = np.stack([ratios[env] for env in sorted(ratios)], axis=1)
+            print(f"| all {len(ratios)} ids | {counts.pop()} per id | | {iqm(matrix)} | {matrix.min():.2f} "
+                  f"| {int(np.sum(matrix >= 0.8))} of {matrix.size} | | |")
+        print()
+    print("Per seed (deterministic policy, mean ± std over episodes; stochastic policy and the "
+          "EvalCallback's best model beside it):")
+    print()
+    print("| env | algo | seed | timesteps | wall (s) | v_x (m/s) | ratio to serpenoid | v_x stochastic (m/s) "
+          "| v_x best model (m/s) | return |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for (env, algo), items in sorted(runs.items(), key=lambda kv: (kv[0][1], size_key(kv[0][0]))):
+        serp = baselines[env]["mean_forward_velocity"]
+        for r in sorted(items, key=lambda r: r["seed"]):
+            d = r["det"]
+            best = f"{r['best']['mean_forward_velocity']:.3f}" if r["best"] else "-"
+            print(f"| {env} | {algo.upper()} | {r['seed']} | {r['steps']} | {r['wall']:.0f} "
+                  f"| {d['mean_forward_velocity']:.3f} ± {d['std_forward_velocity']:.3f} "
+                  f"| {d['mean_forward_velocity'] / serp:.2f} | {r['sto']['mean_forward_velocity']:.3f} | {best} "
+                  f"| {d['mean_return']:.1f} ± {d['std_return']:.1f} |")
+
+
+def size_key(env: str):
+    """Sort ids by their number of links (Snake3 before Snake12), others by name after them."""
+    m = SIZE_RE.match(env)
+    return (int(m["n"]), env) if m else (10**6, env)
 
 
 def main(argv=None) -> int:
@@ -148,31 +190,7 @@ def main(argv=None) -> int:
         plot_campaign(groups, {env: b["mean_forward_velocity"] for env, b in baselines.items()},
                       Path(args.images) / "curve_summary.png")
         plot_sizes(root, runs, args.episodes, Path(args.images) / "speed_vs_n.png", args.earlier, args.measured)
-    print("| env | algo | seeds | timesteps | wall time (min) | v_x deterministic (m/s) | ratio to serpenoid "
-          "| v_x stochastic (m/s) | v_x best model (m/s) | serpenoid v_x (m/s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for (env, algo), items in sorted(runs.items()):
-        items.sort(key=lambda r: r["seed"])
-        det = [r["det"]["mean_forward_velocity"] for r in items]
-        serp = baselines[env]["mean_forward_velocity"]
-        serp_std = baselines[env]["std_forward_velocity"]
-        steps = sorted({r["steps"] for r in items})
-        print(f"| {env} | {algo.upper()} | {len(items)} | {' / '.join(str(x) for x in steps)} "
-              f"| {fmt([r['wall'] / 60 for r in items])} | {fmt(det)} | {np.mean(det) / serp:.2f} "
-              f"| {fmt([r['sto']['mean_forward_velocity'] for r in items])} "
-              f"| {fmt([r['best']['mean_forward_velocity'] for r in items if r['best']])} "
-              f"| {serp:.2f} ± {serp_std:.2f} |")
-    print()
-    print("Per seed (deterministic policy, mean ± std over episodes):")
-    print()
-    print("| env | algo | seed | timesteps | wall (s) | v_x (m/s) | return |")
-    print("|---|---|---|---|---|---|---|")
-    for (env, algo), items in sorted(runs.items()):
-        for r in items:
-            d = r["det"]
-            print(f"| {env} | {algo.upper()} | {r['seed']} | {r['steps']} | {r['wall']:.0f} "
-                  f"| {d['mean_forward_velocity']:.3f} ± {d['std_forward_velocity']:.3f} "
-                  f"| {d['mean_return']:.1f} ± {d['std_return']:.1f} |")
+    print_tables(runs, baselines)
     return 0
 
 
