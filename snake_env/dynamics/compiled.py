@@ -641,14 +641,15 @@ N_HEADER = 48  # >= BLOCK: block -1 (lane_block(0) - one block) lies in the head
 # With finite grip also joint k's motor torque A_k and passive torque P_k, cos, sin of phi_k,
 # the sums of the motors' generalized forces and power over links < k, the traction scale, and
 # the backward sweep's values carried from link k+1 to k (udot at scale 0 and the motors' share,
-# the two pin forces, the least room so far). Values a lane loop carries from link to link live
+# the two pin forces, the least room so far). The error estimate's running maximum over the links
+# before k. Values a lane loop carries from link to link live
 # in the blocks, never in the header: every address in the loop is then a constant distance from
 # the block's, so LLVM vectorises it without run-time alias checks.
 # Rows from B_FREE on are left to callers.
 (B_Q, B_QS, B_ACC, B_TQ, B_A1, B_A2, B_V, B_VB, B_B1, B_B2, B_W, B_WB, B_M00, B_M01, B_M11, B_R0, B_R1, B_PW,
  B_K4, B_TA, B_TP, B_C, B_S, B_RA0, B_RA1, B_PA, B_SC, B_DP0, B_DP1, B_G0, B_G1, B_FA, B_FP, B_GA, B_GP, B_ROOM,
- B_FREE) = range(37)
-BLOCK = 41
+ B_ERR, B_FREE) = range(38)
+BLOCK = 42
 assert N_HEADER >= BLOCK
 _U = np.uint64
 # the same rows as unsigned offsets (row * LANES)
@@ -656,7 +657,7 @@ _U = np.uint64
  _H_PACC, _H_K4U0, _H_K4U1, _H_ERR, _H_SCALE, _H_SCALE_OLD) = (np.uint64(r * LANES) for r in range(19))
 (_B_Q, _B_QS, _B_ACC, _B_TQ, _B_A1, _B_A2, _B_V, _B_VB, _B_B1, _B_B2, _B_W, _B_WB, _B_M00, _B_M01, _B_M11, _B_R0,
  _B_R1, _B_PW, _B_K4, _B_TA, _B_TP, _B_C, _B_S, _B_RA0, _B_RA1, _B_PA, _B_SC, _B_DP0, _B_DP1, _B_G0, _B_G1, _B_FA,
- _B_FP, _B_GA, _B_GP, _B_ROOM) = (np.uint64(r * LANES) for r in range(36))
+ _B_FP, _B_GA, _B_GP, _B_ROOM, _B_ERR) = (np.uint64(r * LANES) for r in range(37))
 _NEXT = np.uint64(BLOCK * LANES)  # from one block to the next
 
 
@@ -682,12 +683,24 @@ def _rk4_update(z, acc, k, first, last, c, sixth):
     return z_new, zs_new, acc_new
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0):
+# rk4_stage_lanes is compiled on its own, not inlined: numba's front end (typing and lowering, not LLVM:
+# NUMBA_OPT=0 saves 10 %) grows faster than linearly in a function's size, and nine inlined stages made
+# rk4_lanes_estimate 83 s of a 120 s cold start. Its stage number is a run-time int64 (_STAGE[k], not the
+# literal k, which numba would compile once per value); ``first`` and ``estimate`` stay literal constants,
+# so that their branches inside the lane loops are folded away and the loops stay vectorised: four
+# specialisations, (True, 0), (True, 1), (False, 0), (False, 4).
+_STAGE = tuple(np.int64(k) for k in range(5))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
     """RK4 stage ``stage`` (1..4) of lanes 0..nl-1 of the scratch s: the
     derivative at the stage state (rows QS, US) by the sweep of
     :func:`derivatives`, then the stage's update of (Q, QS, ACC), (U, US, ACCU),
-    (X, XS, ACCX), (Y, YS, ACCY) and the power sums.
+    (X, XS, ACCX), (Y, YS, ACCY) and the power sums. ``first`` (a literal: stage == 1) starts the RK4
+    sums and, with finite grip, sets the substep's traction scale. ``estimate`` (run-time): 1 compares
+    this stage-1 derivative, the previous substep's k5, with the stored k4 into row H_ERR; 4 stores k4;
+    0 neither.
 
     The link loop is outermost: the channels of link k are read from block k
     and those of link k+1 written to block k+1. ``error_model="numpy"``: a
@@ -698,18 +711,20 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
     n = m.shape[0]
     motor = t_max < math.inf
     traction = grip.shape[0] > 0  # finite grip: stage 1 sets the substep's traction scale (traction_derivatives)
-    first = stage == 1
     last = stage == 4
     c = dt if stage == 3 else 0.5 * dt
+    compare = estimate == 1  # this stage's k1 is the previous substep's k5: compare it with the stored k4
+    keep = estimate == 4  # store this stage's k4
     sixth = dt / 6.0
     use_limit = limit > 0.0
     inv_room = inverse_room(limit)
     lanes = _U(nl)
     b0 = lane_block(0)
-    if traction and first:  # the sweep at scale 0: the passive torques alone (the motors' share kept apart)
-        for l in range(lanes):
-            s[_H_SCALE_OLD + l] = s[_H_SCALE + l]
-            s[_H_SCALE + l] = 0.0
+    if first:
+        if traction:  # the sweep at scale 0: the passive torques alone (the motors' share kept apart)
+            for l in range(lanes):
+                s[_H_SCALE_OLD + l] = s[_H_SCALE + l]
+                s[_H_SCALE + l] = 0.0
     # link 1: qdot of x, y (eq. 1: (x, y) moves with V_1 along e_1) and the sweep's start values
     for l in range(lanes):
         V = s[_H_US0 + l]
@@ -738,6 +753,7 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
         s[b0 + _B_R1 + l] = 0.0
         s[b0 + _B_PW + l] = 0.0
         s[b0 + _B_SC + l] = s[_H_SCALE + l]
+        s[b0 + _B_ERR + l] = s[_H_ERR + l]
         if first:
             s[b0 + _B_RA0 + l] = 0.0
             s[b0 + _B_RA1 + l] = 0.0
@@ -772,11 +788,12 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
             r1 = s[o + _B_R1 + l] + (f * a2 - (mk * a2 * Vb + Ik * b2 * Wb))
             # theta_k is not read again in this stage: its update goes here (qdot_k = omega_k)
             phi = s[p + _B_QS + l] - s[o + _B_QS + l]
-            if estimate == 1:
-                e = abs(sixth * (s[o + _B_K4 + l] - W)) * inv_tol  # rad / (tol * 1 rad)
-                s[_H_ERR + l] = e if e > s[_H_ERR + l] else s[_H_ERR + l]
-            if estimate == 4:
-                s[o + _B_K4 + l] = W
+            # the estimate's rows, stored unconditionally (a select, not a branch: the loop stays vectorised)
+            k4 = s[o + _B_K4 + l]
+            e = abs(sixth * (k4 - W)) * inv_tol  # rad / (tol * 1 rad)
+            err = s[o + _B_ERR + l]
+            s[p + _B_ERR + l] = e if compare and e > err else err
+            s[o + _B_K4 + l] = W if keep else k4
             th, ths, acc = _rk4_update(s[o + _B_Q + l], s[o + _B_ACC + l], W, first, last, c, sixth)
             s[o + _B_Q + l] = th
             s[o + _B_QS + l] = ths
@@ -841,12 +858,14 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
             s[p + _B_R0 + l] = r0
             s[p + _B_R1 + l] = r1
             s[p + _B_PW + l] = power
-            if first and not joint:
-                s[p + _B_RA0 + l] = s[o + _B_RA0 + l]
-                s[p + _B_RA1 + l] = s[o + _B_RA1 + l]
-                s[p + _B_PA + l] = s[o + _B_PA + l]
-    if traction and first:  # the scale; r and power of block n become those at the scale
-        _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes)
+            if first:
+                if not joint:
+                    s[p + _B_RA0 + l] = s[o + _B_RA0 + l]
+                    s[p + _B_RA1 + l] = s[o + _B_RA1 + l]
+                    s[p + _B_PA + l] = s[o + _B_PA + l]
+    if first:
+        if traction:  # the scale; r and power of block n become those at the scale
+            _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes)
     # eq. 8 solved for udot (2x2), then the update of u and of the work
     o = lane_block(n)
     for l in range(lanes):
@@ -858,20 +877,19 @@ def rk4_stage_lanes(model, s, nl, stage, dt, estimate=0, inv_tol=0.0, v_ref=1.0)
         power = s[o + _B_PW + l]
         det = M00 * M11 - M01 * M01
         du0, du1 = solve_eq8(M00, M01, M11, det, r0, r1)
-        if estimate == 1:
-            k5u0 = du0
-            k5u1 = du1
-            if traction:  # k5 at the finished substep's own scale (see traction_derivatives)
-                r0 = s[o + _B_DP0 + l]
-                r1 = s[o + _B_DP1 + l]
-                k5u0, k5u1 = solve_eq8(M00, M01, M11, det, r0, r1)
-            e0 = abs(sixth * (s[_H_K4U0 + l] - k5u0)) * inv_tol / (abs(s[_H_U0 + l]) + v_ref)
-            e1 = abs(sixth * (s[_H_K4U1 + l] - k5u1)) * inv_tol / (abs(s[_H_U1 + l]) + 1.0)
-            e = e0 if e0 > e1 else e1
-            s[_H_ERR + l] = e if e > s[_H_ERR + l] else s[_H_ERR + l]
-        if estimate == 4:
-            s[_H_K4U0 + l] = du0
-            s[_H_K4U1 + l] = du1
+        k5u0 = du0
+        k5u1 = du1
+        if traction:  # k5 at the finished substep's own scale (see traction_derivatives)
+            k5u0, k5u1 = solve_eq8(M00, M01, M11, det, s[o + _B_DP0 + l], s[o + _B_DP1 + l])
+        k4u0 = s[_H_K4U0 + l]
+        k4u1 = s[_H_K4U1 + l]
+        e0 = abs(sixth * (k4u0 - k5u0)) * inv_tol / (abs(s[_H_U0 + l]) + v_ref)
+        e1 = abs(sixth * (k4u1 - k5u1)) * inv_tol / (abs(s[_H_U1 + l]) + 1.0)
+        e = e0 if e0 > e1 else e1
+        err = s[o + _B_ERR + l]  # the links' maximum, carried to block n
+        s[_H_ERR + l] = e if compare and e > err else err
+        s[_H_K4U0 + l] = du0 if keep else k4u0
+        s[_H_K4U1 + l] = du1 if keep else k4u1
         u0, us0, acc0 = _rk4_update(s[_H_U0 + l], s[_H_ACCU0 + l], du0, first, last, c, sixth)
         u1, us1, acc1 = _rk4_update(s[_H_U1 + l], s[_H_ACCU1 + l], du1, first, last, c, sixth)
         s[_H_U0 + l] = u0
@@ -990,16 +1008,17 @@ def rk4_lanes(model, s, nl, dt, n_substeps):
     """``n_substeps`` RK4 steps of lanes 0..nl-1 (loaded by :func:`load_lanes`);
     the work of the loads is added to row H_WORK.
 
-    The four stages are written out with constant stage numbers and inlined,
-    so each copy keeps only its own RK4 bookkeeping."""
+    The four stages call the one compiled stage function (see _STAGE)."""
     for _ in range(n_substeps):
-        rk4_stage_lanes(model, s, nl, 1, dt)
-        rk4_stage_lanes(model, s, nl, 2, dt)
-        rk4_stage_lanes(model, s, nl, 3, dt)
-        rk4_stage_lanes(model, s, nl, 4, dt)
+        rk4_stage_lanes(model, s, nl, _STAGE[1], True, dt, _STAGE[0], 0.0, 1.0)
+        rk4_stage_lanes(model, s, nl, _STAGE[2], False, dt, _STAGE[0], 0.0, 1.0)
+        rk4_stage_lanes(model, s, nl, _STAGE[3], False, dt, _STAGE[0], 0.0, 1.0)
+        rk4_stage_lanes(model, s, nl, _STAGE[4], False, dt, _STAGE[0], 0.0, 1.0)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+# inline="always": numba links the compiled code of every callee into each caller and optimises it there
+# again, so each dispatcher level between the env step and rk4_stage_lanes recompiles the stages
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def rk4_lanes_estimate(model, s, nl, dt, n_substeps, tol, v_ref):
     """:func:`rk4_lanes` (the same RK4, bit for bit) plus an embedded error estimate:
     row H_ERR gets, per lane, the largest over substeps and coordinates of
@@ -1011,18 +1030,18 @@ def rk4_lanes_estimate(model, s, nl, dt, n_substeps, tol, v_ref):
     inv_tol = 1.0 / tol
     for l in range(nl):
         s[_H_ERR + np.uint64(l)] = 0.0
-    rk4_stage_lanes(model, s, nl, 1, dt, 0, inv_tol, v_ref)
-    rk4_stage_lanes(model, s, nl, 2, dt, 0, inv_tol, v_ref)
-    rk4_stage_lanes(model, s, nl, 3, dt, 0, inv_tol, v_ref)
-    rk4_stage_lanes(model, s, nl, 4, dt, 4, inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, _STAGE[1], True, dt, _STAGE[0], inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, _STAGE[2], False, dt, _STAGE[0], inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, _STAGE[3], False, dt, _STAGE[0], inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, _STAGE[4], False, dt, _STAGE[4], inv_tol, v_ref)
     for _ in range(1, n_substeps):
-        rk4_stage_lanes(model, s, nl, 1, dt, 1, inv_tol, v_ref)
-        rk4_stage_lanes(model, s, nl, 2, dt, 0, inv_tol, v_ref)
-        rk4_stage_lanes(model, s, nl, 3, dt, 0, inv_tol, v_ref)
-        rk4_stage_lanes(model, s, nl, 4, dt, 4, inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, _STAGE[1], True, dt, _STAGE[1], inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, _STAGE[2], False, dt, _STAGE[0], inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, _STAGE[3], False, dt, _STAGE[0], inv_tol, v_ref)
+        rk4_stage_lanes(model, s, nl, _STAGE[4], False, dt, _STAGE[4], inv_tol, v_ref)
     # k5 of the last substep: a stage 1 at the final state, which it leaves unchanged
     # (stage 1 writes only the stage state and the running sums)
-    rk4_stage_lanes(model, s, nl, 1, dt, 1, inv_tol, v_ref)
+    rk4_stage_lanes(model, s, nl, _STAGE[1], True, dt, _STAGE[1], inv_tol, v_ref)
 
 
 @njit(cache=True, nogil=True)

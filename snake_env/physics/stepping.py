@@ -65,6 +65,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -333,6 +334,11 @@ def _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, settings):
     return 0, residual
 
 
+# int64 values, not literals, for the r_first argument of _integrate_checked: an integer constant passed
+# from a jitted caller is a Literal[int] type and gets its own compiled specialisation (~1 s cold each)
+_ZERO, _ONE = np.int64(0), np.int64(1)
+
+
 @njit(cache=True, nogil=True)
 def _integrate_checked(model, settings, r_first, r_last, q0, u0, torques, k0, q, u):
     """One env step of one snake from (q0, u0) (kinetic energy k0) by the per-snake RK4
@@ -397,7 +403,7 @@ def _step_one(model, settings, q, u, torques, obs, aux):
     k0, _, _ = _measures(model, q, u)
     q0 = q.copy()
     u0 = u.copy()
-    code, work, r, residual = _integrate_checked(model, settings, 0, max_ref, q0, u0, torques, k0, q, u)
+    code, work, r, residual = _integrate_checked(model, settings, _ZERO, max_ref, q0, u0, torques, k0, q, u)
     cx, cy = _center_of_mass(model, q)
     env_dt = sim_dt * frame_skip
     aux[AUX_X] = cx
@@ -535,7 +541,9 @@ def _load_lane(s, lane, q, u, work):
     s[_H_WORK + lane] = work
 
 
-@njit(cache=True, nogil=True)
+# inline="always": one dispatcher level less between the env step and the lane stages (see
+# compiled.rk4_lanes_estimate); _step_lanes and _step_lanes_parallel each get their own copy
+@njit(cache=True, nogil=True, inline="always")
 def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s):
     """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES): the
     first attempt in lanes, refinements of failing snakes by the per-snake kernel."""
@@ -574,11 +582,13 @@ def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index
         work = 0.0
         r = 0
         if max_ref > 0 and code != FAIL_FOLD:  # an accurate fold is final (module doc)
-            code, work, r, residual = _integrate_checked(model, settings, 1, max_ref, q[b], u[b], torques[b], k0,
+            code, work, r, residual = _integrate_checked(model, settings, _ONE, max_ref, q[b], u[b], torques[b], k0,
                                                          q1, u1)
-        else:
-            q1[:] = q[b]
-            u1[:] = u[b]
+        else:  # element by element: a slice copy compiles numba's shape-mismatch message (~2 s cold)
+            for j in range(n + 2):
+                q1[j] = q[b, j]
+            u1[0] = u[b, 0]
+            u1[1] = u[b, 1]
         # the accepted refined state, or the pre-step state of a failed step
         _load_lane(s, lane, q1, u1, work)
         codes[l] = code
@@ -764,8 +774,12 @@ def step(params: PhysicsParams, q, u, torques):
 def _kernel(q):
     if q.ndim == 1:
         return _step_lanes_one
-    # threads pay off only for enough work per call (see PARALLEL_MIN_WORK)
-    return _step_lanes_parallel if q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK else _step_lanes
+    # threads pay off only for enough work per call (see PARALLEL_MIN_WORK), and only with more than one
+    # thread: with one, the parallel kernel runs the same loop after a compile of its own (the whole
+    # lane kernel again) on the first large batch
+    if q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK and numba.get_num_threads() > 1:
+        return _step_lanes_parallel
+    return _step_lanes
 
 
 def step_inplace(params: PhysicsParams, q, u, torques, obs, aux):
@@ -814,10 +828,10 @@ def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out, scale) -> No
     compiled.wheel_lateral_forces_batch(params.kernel_model, q, u, torques, out, scale)
 
 
-# Said once per process on stderr before the first step compiles the kernels: measured 84-92 s from
-# an empty cache on the 2-core machine (docs/benchmarks.md); numba caches the result on disk.
-COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 1.5 min on a 2-core "
-                  "machine; cached afterwards)")
+# Said once per process on stderr before the first step compiles the kernels: measured 31 s from an
+# empty cache on the 2-core machine beside two trainings (docs/benchmarks.md); numba caches the result on disk.
+COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about half a minute on a "
+                  "2-core machine; cached afterwards)")
 _compile_announced = False
 
 

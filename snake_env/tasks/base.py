@@ -145,6 +145,9 @@ def common_reset_info(aux: np.ndarray) -> dict[str, np.ndarray]:
 
 
 _PAIRWISE_BLOCK = 128  # numpy's PW_BLOCKSIZE
+# start index 0 as an int64 value: a literal 0 from a jitted caller compiles its own specialisation
+# of squared_sum and _squared_sum_block (Literal[int](0)), beside the int64 one (~1 s cold)
+ZERO_INDEX = np.int64(0)
 
 
 @njit(cache=True, nogil=True)
@@ -224,7 +227,7 @@ def _squared_sum_block(a, start, count):
 @njit(cache=True, nogil=True)
 def _squared_norms(a, out):
     for b in range(a.shape[0]):
-        out[b] = squared_sum(a[b], 0, a.shape[1])
+        out[b] = squared_sum(a[b], ZERO_INDEX, a.shape[1])
 
 
 def squared_norm(a: np.ndarray) -> np.ndarray:

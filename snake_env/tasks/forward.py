@@ -11,7 +11,7 @@ from snake_env.controllers import SerpenoidController, gait_for_links, load_para
 from snake_env.physics.settings import setting
 from snake_env.physics import AUX_VX
 
-from .base import DEFAULT_CTRL_COST_WEIGHT, StepContext, Task, controller_geometry, squared_sum
+from .base import DEFAULT_CTRL_COST_WEIGHT, ZERO_INDEX, StepContext, Task, controller_geometry, squared_sum
 
 
 @dataclass(frozen=True)
@@ -233,7 +233,7 @@ def _forward_terms(aux, action, forward_reward_weight, ctrl_cost_weight, out):
     calls on (1,) arrays would cost more than the single env's physics step)."""
     for b in range(aux.shape[0]):
         reward_forward = forward_reward_weight * aux[b, AUX_VX]
-        ctrl_cost = ctrl_cost_weight * squared_sum(action[b], 0, action.shape[1])
+        ctrl_cost = ctrl_cost_weight * squared_sum(action[b], ZERO_INDEX, action.shape[1])
         out[0, b] = reward_forward - ctrl_cost
         out[1, b] = reward_forward
         out[2, b] = -ctrl_cost
