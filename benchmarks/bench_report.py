@@ -13,6 +13,7 @@ import subprocess
 from importlib import metadata
 
 from snake_env.atomic import atomic_write_bytes, atomic_write_text, save_figure
+from snake_env.benchmarks.bench_sections import snake_id
 
 # The targets: (key, description, threshold, "ge" = at least, "lt" = below)
 TARGETS = (
@@ -95,7 +96,7 @@ def target_values(results: dict) -> dict:
     kane = udot.get("kane", {})
     paper = udot.get("kane_paper", {})
     return {
-        "snake3_vs_swimmer": _ratio(_get(results, "single_env", "snake_env/Snake3-v2", "steps_per_s"), swimmer),
+        "snake3_vs_swimmer": _ratio(_get(results, "single_env", snake_id(3), "steps_per_s"), swimmer),
         "snake5_1024_vs_swimmer": _ratio(_get(results, "vector_env", "1024", "env_steps_per_s"), swimmer),
         "kane_t1000_over_t100": _ratio(kane.get("1000"), kane.get("100")),
         "kane_paper_over_kane_n200": _ratio(paper.get("200"), kane.get("200")),
@@ -120,7 +121,7 @@ def derived_ratios(results: dict) -> dict:
         "kane_paper / kane_kernel at n=200": _ratio(paper.get("200"), kernel.get("200")),
         "kane_paper / kane_numpy at n=200": _ratio(paper.get("200"), numpy_sweep.get("200")),
     }
-    for env_id in ("snake_env/Snake5-v2", "snake_env/Snake30-v2"):
+    for env_id in (snake_id(5), snake_id(30)):
         out[f"{env_id} single / Swimmer-v5 single"] = _ratio(
             _get(results, "single_env", env_id, "steps_per_s"), swimmer)
     for num_envs in (_get(results, "vector_env") or {}):

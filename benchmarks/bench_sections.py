@@ -23,7 +23,10 @@ SWIMMER_ID = "Swimmer-v5"
 
 
 def snake_id(n_links: int) -> str:
-    return f"snake_env/Snake{n_links}-v2"
+    """The newest forward id for n links (the default physics: servo motors, finite grip)."""
+    from snake_env.tasks.forward import ForwardTask
+
+    return f"snake_env/Snake{n_links}-v{ForwardTask.version}"
 
 
 def mujoco_available() -> tuple[bool, str]:
@@ -265,7 +268,7 @@ def status_mb(field):
                 return int(line.split()[1]) / 1024.0
 import gymnasium as gym, numpy as np, snake_env
 base = status_mb("VmRSS")
-envs = gym.make_vec("snake_env/Snake{n_links}-v2", num_envs={num_envs}, vectorization_mode="vector_entry_point")
+envs = gym.make_vec("{env_id}", num_envs={num_envs}, vectorization_mode="vector_entry_point")
 envs.reset(seed=0)
 action = np.zeros(envs.action_space.shape, dtype=envs.action_space.dtype)
 for _ in range({steps}):
@@ -279,7 +282,7 @@ print(json.dumps({{"peak_rss_mb": status_mb("VmHWM"), "rss_after_imports_mb": ba
 def vector_env_memory(n_links: int, num_envs: int, steps: int) -> dict:
     """Peak resident memory (MiB) of a fresh process holding the vector env
     (imports, env, reset and ``steps`` steps), and its RSS after the imports alone."""
-    out = _run_child(MEMORY_CHILD.format(n_links=n_links, num_envs=num_envs, steps=steps), timeout=600)
+    out = _run_child(MEMORY_CHILD.format(env_id=snake_id(n_links), num_envs=num_envs, steps=steps), timeout=600)
     out.update({"env": snake_id(n_links), "num_envs": num_envs, "steps": steps})
     return out
 
@@ -289,11 +292,11 @@ import json, time
 start = time.perf_counter()
 import gymnasium as gym
 import snake_env
-env = gym.make("snake_env/Snake{n_links}-v2")
+env = gym.make("{env_id}")
 env.reset(seed=0)
 env.step(env.action_space.sample())
 single = time.perf_counter() - start
-envs = gym.make_vec("snake_env/Snake{n_links}-v2", num_envs=32, vectorization_mode="vector_entry_point")
+envs = gym.make_vec("{env_id}", num_envs=32, vectorization_mode="vector_entry_point")
 envs.reset(seed=0)
 envs.step(envs.action_space.sample())
 print(json.dumps({{"import_and_first_step_s": single, "plus_vector_first_step_s": time.perf_counter() - start}}))
@@ -308,7 +311,7 @@ def startup_time(n_links: int, runs: int, cold: bool = True) -> dict:
     the "once caches exist" figure; without it the runs use the current cache."""
     import tempfile
 
-    code = STARTUP_CHILD.format(n_links=n_links)
+    code = STARTUP_CHILD.format(env_id=snake_id(n_links))
     samples = []
     wall = []
     with tempfile.TemporaryDirectory(prefix="snake_bench_numba_") as cache:

@@ -6,8 +6,9 @@ import json
 import pytest
 
 from snake_env.benchmarks import bench, bench_report
+from snake_env.benchmarks.bench_sections import snake_id
 
-SNAKE_IDS = ["snake_env/Snake3-v2", "snake_env/Snake5-v2", "snake_env/Snake30-v2"]
+SNAKE_IDS = [snake_id(3), snake_id(5), snake_id(30)]
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +78,7 @@ def test_targets_agree_with_the_measurements(quick_run):
         assert row["status"] in ("met", "not met", "not measured")
     single = results["single_env"]
     if "Swimmer-v5" in single:
-        expected = single["snake_env/Snake3-v2"]["steps_per_s"] / single["Swimmer-v5"]["steps_per_s"]
+        expected = single[snake_id(3)]["steps_per_s"] / single["Swimmer-v5"]["steps_per_s"]
         assert targets["snake3_vs_swimmer"]["value"] == pytest.approx(expected)
     # quick sizes do not include 1024 envs, n = 1000 or 4096 envs: those are honestly "not measured"
     for key in ("snake5_1024_vs_swimmer", "kane_t1000_over_t100", "kane_paper_over_kane_n200", "snake30_4096_peak_mb"):
@@ -102,7 +103,7 @@ def test_outputs_written_and_markdown_regenerates_from_json(quick_run):
 def _synthetic(swimmer=1000.0, snake3=3500.0, vec1024=90_000.0, t100=1e-5, t1000=2e-4, paper200=1e-3, kane200=1e-5,
                ppo_snake=2000.0, ppo_swimmer=1000.0, peak=499.0, startup=3.0, cold=9.9):
     return {
-        "single_env": {"Swimmer-v5": {"steps_per_s": swimmer}, "snake_env/Snake3-v2": {"steps_per_s": snake3}},
+        "single_env": {"Swimmer-v5": {"steps_per_s": swimmer}, snake_id(3): {"steps_per_s": snake3}},
         "vector_env": {"1024": {"env_steps_per_s": vec1024}},
         "udot": {"seconds_per_call": {"kane": {"100": t100, "200": kane200, "1000": t1000},
                                       "kane_paper": {"200": paper200}}},
