@@ -134,7 +134,9 @@ def write_outputs(results: dict, args) -> None:
     if args.plot:
         bench_report.write_plot(results, args.plot)
     if args.markdown:
-        bench_report.write_atomic(args.markdown, bench_report.format_markdown(results, args.plot, args.markdown))
+        page = bench_report.format_markdown(results, args.plot, args.markdown)
+        tail = bench_report.kept_tail(args.markdown)  # the hand-written profile stays
+        bench_report.write_atomic(args.markdown, page + ("\n" + tail if tail else ""))
 
 
 def main(argv=None) -> int:

@@ -289,6 +289,22 @@ def format_markdown(results: dict, plot_path: str | None = None, markdown_path: 
     return "\n".join(out)
 
 
+# The hand-written part of the page: from this heading on, the page's text is kept when snake-bench
+# regenerates it (the profile is measured with other tools and dated, docs/logs/profile-*.md).
+KEPT_HEADING = "## Profile"
+
+
+def kept_tail(markdown_path: str) -> str:
+    """The text of the existing page from :data:`KEPT_HEADING` on ("" if there is none)."""
+    try:
+        with open(markdown_path, encoding="utf-8") as handle:
+            text = handle.read()
+    except OSError:
+        return ""
+    at = text.find("\n" + KEPT_HEADING)
+    return text[at + 1:] if at >= 0 else ""
+
+
 # --------------------------------------------------------------------------- files
 def write_atomic(path: str, data: str | bytes) -> None:
     """Write via a temp file in the same directory, then os.replace."""

@@ -100,6 +100,17 @@ def test_outputs_written_and_markdown_regenerates_from_json(quick_run):
     assert regenerated.read_text().replace("again.md", "benchmarks.md") == markdown  # the command names the page
 
 
+def test_regenerating_keeps_the_hand_written_profile(quick_run, tmp_path):
+    paths, _ = quick_run
+    page = tmp_path / "benchmarks.md"
+    profile = f"{bench_report.KEPT_HEADING}: where a step's time goes\n\n- measured by hand\n"
+    page.write_text("# Benchmarks\n\nold numbers\n\n" + profile)
+    assert bench.main(["--from-json", str(paths["json"]), "--markdown", str(page)]) == 0
+    text = page.read_text()
+    assert "old numbers" not in text and "| section | item | value |" in text
+    assert text.endswith(profile) and text.count(bench_report.KEPT_HEADING) == 1
+
+
 def _synthetic(swimmer=1000.0, snake3=3500.0, vec1024=90_000.0, t100=1e-5, t1000=2e-4, paper200=1e-3, kane200=1e-5,
                ppo_snake=2000.0, ppo_swimmer=1000.0, peak=499.0, startup=3.0, cold=9.9):
     return {
