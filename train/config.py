@@ -52,6 +52,9 @@ META_DEFAULTS = {
     # several snake sizes in one run (policy JointPolicy only): a list of link counts, e.g. [5, 8, 12];
     # snake_env.train.multi_n_env pads them to the longest
     "n_links_set": None,
+    # exploration noise, RL Zoo's key: "pink" (SAC) samples rollout actions with pink noise
+    # (snake_env.train.exploration)
+    "noise_type": None,
 }
 # the shared per-joint policy (snake_env.train.joint_policy), for PPO and SAC
 JOINT_POLICY = "JointPolicy"
@@ -302,6 +305,12 @@ def validate(config: dict) -> dict:
                           f"(it reads the goal that HER relabels)")
     normalize_options(config["normalize"], None)
     check_joint_policy(config)
+    from snake_env.train.exploration import check_noise_type
+
+    try:
+        check_noise_type(config)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     for key in SCHEDULE_KEYS:
         value = config.get(key)
         if isinstance(value, str):

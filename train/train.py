@@ -194,6 +194,12 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar=True, verbose:
             model.load_replay_buffer(replay)
         print(f"resuming {run_dir} from {model_path.name} ({model.num_timesteps} steps)")
 
+    import gymnasium as gym
+
+    from snake_env.train.exploration import apply_exploration
+
+    spec = gym.spec(config["env_id"])
+    apply_exploration(model, config, seq_len=spec.max_episode_steps or 1000)  # not saved with the model: each start
     segment = next_segment(log_dir)
     model.set_logger(configure(str(segment), ["csv", "tensorboard"]))
     eval_freq = max(1, config["eval_freq"] // n_envs)
