@@ -642,14 +642,15 @@ N_HEADER = 48  # >= BLOCK: block -1 (lane_block(0) - one block) lies in the head
 # the sums of the motors' generalized forces and power over links < k, the traction scale, and
 # the backward sweep's values carried from link k+1 to k (udot at scale 0 and the motors' share,
 # the two pin forces, the least room so far). The error estimate's running maximum over the links
-# before k. Values a lane loop carries from link to link live
+# before k. The backward sweep's lambda_0 and lambda_g of wheel k (so the step's wheel forces come
+# from the k5 sweep at the final state, lambda_0 + s lambda_g, with no sweep of their own). Values a lane loop carries from link to link live
 # in the blocks, never in the header: every address in the loop is then a constant distance from
 # the block's, so LLVM vectorises it without run-time alias checks.
 # Rows from B_FREE on are left to callers.
 (B_Q, B_QS, B_ACC, B_TQ, B_A1, B_A2, B_V, B_VB, B_B1, B_B2, B_W, B_WB, B_M00, B_M01, B_M11, B_R0, B_R1, B_PW,
  B_K4, B_TA, B_TP, B_C, B_S, B_RA0, B_RA1, B_PA, B_SC, B_DP0, B_DP1, B_G0, B_G1, B_FA, B_FP, B_GA, B_GP, B_ROOM,
- B_ERR, B_FREE) = range(38)
-BLOCK = 42
+ B_ERR, B_L0, B_LG, B_FREE) = range(40)
+BLOCK = 44
 assert N_HEADER >= BLOCK
 _U = np.uint64
 # the same rows as unsigned offsets (row * LANES)
@@ -657,7 +658,7 @@ _U = np.uint64
  _H_PACC, _H_K4U0, _H_K4U1, _H_ERR, _H_SCALE, _H_SCALE_OLD) = (np.uint64(r * LANES) for r in range(19))
 (_B_Q, _B_QS, _B_ACC, _B_TQ, _B_A1, _B_A2, _B_V, _B_VB, _B_B1, _B_B2, _B_W, _B_WB, _B_M00, _B_M01, _B_M11, _B_R0,
  _B_R1, _B_PW, _B_K4, _B_TA, _B_TP, _B_C, _B_S, _B_RA0, _B_RA1, _B_PA, _B_SC, _B_DP0, _B_DP1, _B_G0, _B_G1, _B_FA,
- _B_FP, _B_GA, _B_GP, _B_ROOM, _B_ERR) = (np.uint64(r * LANES) for r in range(37))
+ _B_FP, _B_GA, _B_GP, _B_ROOM, _B_ERR, _B_L0, _B_LG) = (np.uint64(r * LANES) for r in range(39))
 _NEXT = np.uint64(BLOCK * LANES)  # from one block to the next
 
 
@@ -973,6 +974,8 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes):
             mVW = mk * V * W
             lam0 = (Ik * alpha - P_in + P_out) / hk - 2.0 * Fp + mVW
             lamg = (Ik * alpha_g - A_in + A_out) / hk - 2.0 * Gp
+            s[o + _B_L0 + l] = lam0
+            s[o + _B_LG + l] = lamg
             Fa += -cwk * V - mk * Vdot
             Fp += lam0 - mVW
             Ga += -mk * Vdot_g
@@ -1001,6 +1004,17 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes):
         s[o + _B_R0 + l] = s[o + _B_R0 + l] + scale * s[o + _B_RA0 + l]
         s[o + _B_R1 + l] = s[o + _B_R1 + l] + scale * s[o + _B_RA1 + l]
         s[o + _B_PW + l] = s[o + _B_PW + l] + scale * s[o + _B_PA + l]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def lane_wheel_forces(s, lane, n, out):
+    """Lane ``lane``'s wheel forces (N) from the last traction pass (rows B_L0, B_LG, H_SCALE) into out
+    (n,), lambda_k = lambda_0 + s lambda_g as :func:`traction_derivatives` forms them; returns s."""
+    scale = s[_H_SCALE + lane]
+    for k in range(n):
+        o = lane_block(k)
+        out[k] = s[o + _B_L0 + lane] + scale * s[o + _B_LG + lane]
+    return scale
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

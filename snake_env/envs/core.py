@@ -170,13 +170,17 @@ class SnakeBatch:
         ``checked``: the actions are already a float64 copy clipped by :func:`check_actions`."""
         a = actions if checked else check_actions(actions, self.torques.shape)
         _scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev)
-        physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux)
+        if self.report_grip:  # the wheel forces at the step's end come from the step's own sweep
+            physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux,
+                                 self.wheel_force, self.traction_scale)
+        else:
+            physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux)
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         info, failures = common_step_info(ctx)
         if self.report_grip:
-            info["wheel_lateral_force"] = self.wheel_lateral_forces()
+            info["wheel_lateral_force"] = self.wheel_force.copy()
             info["wheel_slip"] = np.abs(info["wheel_lateral_force"]) > self.grip
             info["traction_scale"] = self.traction_scale.copy()
         info.update(task_info)

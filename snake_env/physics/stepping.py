@@ -544,9 +544,11 @@ def _load_lane(s, lane, q, u, work):
 # inline="always": one dispatcher level less between the env step and the lane stages (see
 # compiled.rk4_lanes_estimate); _step_lanes and _step_lanes_parallel each get their own copy
 @njit(cache=True, nogil=True, inline="always")
-def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s):
+def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s, forces, scale,
+                     links, dq, du):
     """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES): the
-    first attempt in lanes, refinements of failing snakes by the per-snake kernel."""
+    first attempt in lanes, refinements of failing snakes by the per-snake kernel. With ``forces``
+    (B, n) not empty, also each snake's wheel forces and traction scale (:func:`_step_forces`)."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     n = m.shape[0]
@@ -560,6 +562,7 @@ def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index
     _observe_lanes(model, s, nl)
     # the step check; the pre-step state of each snake is still in q, u (written back only below)
     codes = np.zeros(nl, np.int64)
+    in_lane = np.ones(nl, np.bool_)  # the lane's own result stands (not refined, not undone)
     refinements = np.zeros(nl, np.int64)
     residuals = np.zeros(nl)
     redo = False
@@ -579,6 +582,7 @@ def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index
             residuals[l] = residual
             continue
         b = index[start + l]
+        in_lane[l] = False
         work = 0.0
         r = 0
         if max_ref > 0 and code != FAIL_FOLD:  # an accurate fold is final (module doc)
@@ -634,6 +638,19 @@ def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index
         aux[b, AUX_FAILED] = codes[l]
         aux[b, AUX_REFINEMENTS] = refinements[l]
         aux[b, AUX_RESIDUAL] = residuals[l]
+        if forces.shape[0] > 0:
+            if in_lane[l] and model[11].shape[0] > 0:  # from the k5 traction pass at the final state
+                scale[b] = compiled.lane_wheel_forces(s, lane, n, forces[b])
+            else:
+                _step_forces(model, q, u, torques, b, forces, scale, links, dq, du)
+
+
+@njit(cache=True, nogil=True)
+def _step_forces(model, q, u, torques, b, forces, scale, links, dq, du):
+    """Snake b's wheel forces and traction scale at its current state by their own sweep
+    (compiled.wheel_lateral_forces), for a snake the lanes did not finish: refined, undone or
+    stepped alone."""
+    scale[b] = compiled.wheel_lateral_forces(model, q[b], u[b], torques[b], links, dq, du, forces[b])
 
 
 @njit(cache=True, nogil=True)
@@ -645,36 +662,49 @@ def _total_mass(m):
 
 
 @njit(cache=True, nogil=True)
-def _step_lanes(model, settings, q, u, torques, obs, aux):
+def _step_lanes(model, settings, q, u, torques, obs, aux, forces, scale):
     """Step B snakes on one thread: lane groups of compiled.LANES, and
-    :func:`_step_one` for the rare snake whose angles exceed the lanes' sin/cos range."""
+    :func:`_step_one` for the rare snake whose angles exceed the lanes' sin/cos range.
+    ``forces`` (B, n), ``scale`` (B,): the wheel forces and traction scale at the step's end, or
+    empty arrays for none."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    n = m.shape[0]
+    links = np.empty((n, compiled.LINK_CHANNELS))
+    dq = np.empty(n + 2)
+    du = np.empty(2)
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
         _step_one(model, settings, q[b], u[b], torques[b], obs[b], aux[b])
-    s = np.empty(compiled.lanes_scratch_size(m.shape[0]))
+        if forces.shape[0] > 0:
+            _step_forces(model, q, u, torques, b, forces, scale, links, dq, du)
+    s = np.empty(compiled.lanes_scratch_size(n))
     total_mass = _total_mass(m)
     for start in range(0, count, _LANES):
         _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
-                         min(_LANES, count - start), s)
+                         min(_LANES, count - start), s, forces, scale, links, dq, du)
 
 
 @njit(cache=True, parallel=True)
-def _step_lanes_parallel(model, settings, q, u, torques, obs, aux):
+def _step_lanes_parallel(model, settings, q, u, torques, obs, aux, forces, scale):
     """:func:`_step_lanes` with the lane groups spread over threads."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    n = m.shape[0]
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
         b = index[i]
         _step_one(model, settings, q[b], u[b], torques[b], obs[b], aux[b])
-    size = compiled.lanes_scratch_size(m.shape[0])
+        if forces.shape[0] > 0:
+            _step_forces(model, q, u, torques, b, forces, scale, np.empty((n, compiled.LINK_CHANNELS)),
+                         np.empty(n + 2), np.empty(2))
+    size = compiled.lanes_scratch_size(n)
     total_mass = _total_mass(m)
     for group in prange((count + _LANES - 1) // _LANES):
         start = group * _LANES
         s = np.empty(size)
         _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
-                         min(_LANES, count - start), s)
+                         min(_LANES, count - start), s, forces, scale, np.empty((n, compiled.LINK_CHANNELS)),
+                         np.empty(n + 2), np.empty(2))
 
 
 @njit(cache=True, nogil=True)
@@ -682,7 +712,7 @@ def _step_lanes_one(model, settings, q, u, torques, obs, aux):
     """One snake (1-D arrays) through the lane kernel, so it equals any row of a batch bit for bit."""
     _step_lanes(model, settings, q.reshape((1, q.shape[0])), u.reshape((1, 2)),
                 torques.reshape((1, torques.shape[0])), obs.reshape((1, obs.shape[0])),
-                aux.reshape((1, aux.shape[0])))
+                aux.reshape((1, aux.shape[0])), np.empty((0, q.shape[0] - 2)), np.empty(0))
 
 
 @njit(cache=True, nogil=True)
@@ -766,14 +796,14 @@ def step(params: PhysicsParams, q, u, torques):
     if torques.shape != q.shape[:-1] + (params.n_links - 1,):
         raise ValueError(f"torques must have shape {q.shape[:-1] + (params.n_links - 1,)}, got {torques.shape}")
     obs, aux = _outputs(params, q.shape[:-1])
-    kernel = _kernel(q)
-    kernel(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux)
+    if q.ndim == 1:
+        _step_lanes_one(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux)
+    else:
+        step_inplace(params, q, u, torques, obs, aux)
     return q, u, obs, aux
 
 
 def _kernel(q):
-    if q.ndim == 1:
-        return _step_lanes_one
     # threads pay off only for enough work per call (see PARALLEL_MIN_WORK), and only with more than one
     # thread: with one, the parallel kernel runs the same loop after a compile of its own (the whole
     # lane kernel again) on the first large batch
@@ -782,10 +812,18 @@ def _kernel(q):
     return _step_lanes
 
 
-def step_inplace(params: PhysicsParams, q, u, torques, obs, aux):
-    """:func:`step` writing into caller-owned float64 C-contiguous buffers (the envs' hot path)."""
-    kernel = _kernel(q)
-    kernel(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux)
+_NO_FORCES = np.empty((0, 0))
+_NO_SCALE = np.empty(0)
+
+
+def step_inplace(params: PhysicsParams, q, u, torques, obs, aux, forces=None, scale=None):
+    """:func:`step` of a batch (2-D arrays) writing into caller-owned float64 C-contiguous buffers (the
+    envs' hot path). With ``forces`` (B, n) and ``scale`` (B,), also each snake's wheel lateral forces
+    (N) and traction scale at the step's end, as :func:`wheel_lateral_forces` gives them: with finite
+    grip read from the integrator's last traction pass at the final state, so they cost no sweep."""
+    if forces is None:
+        forces, scale = _NO_FORCES, _NO_SCALE
+    _kernel(q)(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux, forces, scale)
 
 
 def reset(params: PhysicsParams, noise):

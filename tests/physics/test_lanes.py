@@ -96,7 +96,8 @@ def test_threaded_lane_step_equals_the_serial_one(rng):
     for kernel in (stepping._step_lanes, stepping._step_lanes_parallel):
         qk, uk = q.copy(), u.copy()
         obs, aux = np.empty((B, p.obs_size)), np.empty((B, AUX_SIZE))
-        kernel(p.kernel_model, p.kernel_settings, qk, uk, torques, obs, aux)
-        outputs.append((qk, uk, obs, aux))
+        forces, scale = np.empty((B, 4)), np.empty(B)  # the wheel forces at the step's end too
+        kernel(p.kernel_model, p.kernel_settings, qk, uk, torques, obs, aux, forces, scale)
+        outputs.append((qk, uk, obs, aux, forces, scale))
     for serial, threaded in zip(*outputs):
         np.testing.assert_array_equal(threaded, serial)

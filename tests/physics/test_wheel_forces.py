@@ -9,7 +9,7 @@ import pytest
 
 from snake_env.dynamics import lagrange, newton_euler
 from snake_env.envs import SnakeEnv
-from snake_env.physics import GRAVITY
+from snake_env.physics import AUX_REFINEMENTS, GRAVITY
 
 
 @pytest.mark.parametrize("n_links", [3, 5, 12])
@@ -53,6 +53,27 @@ def test_vector_env_reports_the_single_envs_forces_and_ample_grip_never_slips():
     plain = gym.make("snake_env/Snake5-v2")
     plain.reset(seed=0)
     assert "wheel_lateral_force" not in plain.step(action[0])[4]
+
+
+def test_step_reports_the_forces_of_their_own_sweep_on_every_path():
+    """The step reads the wheel forces from the integrator's last traction pass (the final state's k5
+    sweep) for snakes the lanes finished, and sweeps anew for refined or undone ones: both equal
+    the separate sweep of the final state (SnakeEnv.wheel_lateral_forces)."""
+    vec = gym.make_vec("snake_env/Snake5-v3", num_envs=64, vectorization_mode="vector_entry_point")
+    core = vec.unwrapped._batch
+    vec.reset(seed=3)
+    refined = lane = 0
+    for action in np.random.default_rng(3).uniform(-1, 1, (30, 64, 4)):
+        _, _, _, _, info = vec.step(action)
+        reported, scale = info["wheel_lateral_force"], info["traction_scale"]
+        again = core.wheel_lateral_forces()
+        bound = np.max(np.abs(again), axis=1, keepdims=True) + 1.0
+        assert np.all(np.abs(reported - again) / bound < 1e-12)
+        np.testing.assert_allclose(scale, core.traction_scale, rtol=0, atol=1e-12)
+        redone = core.aux[:, AUX_REFINEMENTS] > 0
+        refined += redone.sum()
+        lane += (~redone).sum()
+    assert refined > 0 and lane > 0  # both paths ran
 
 
 def test_bad_friction_is_a_one_line_error():
