@@ -125,8 +125,8 @@ def print_tables(runs: dict, baselines: dict) -> None:
           "EvalCallback's best model beside it):")
     print()
     print("| env | algo | seed | timesteps | wall (s) | v_x (m/s) | ratio to serpenoid | v_x stochastic (m/s) "
-          "| v_x best model (m/s) | return |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| v_x best model (m/s) | joint freq. (Hz) | peak joint rate (rad/s) | wheel-steps outside the cone |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for (env, algo), items in sorted(runs.items(), key=lambda kv: (kv[0][1], size_key(kv[0][0]))):
         serp = baselines[env]["mean_forward_velocity"]
         for r in sorted(items, key=lambda r: r["seed"]):
@@ -135,7 +135,14 @@ def print_tables(runs: dict, baselines: dict) -> None:
             print(f"| {env} | {algo.upper()} | {r['seed']} | {r['steps']} | {r['wall']:.0f} "
                   f"| {d['mean_forward_velocity']:.3f} ± {d['std_forward_velocity']:.3f} "
                   f"| {d['mean_forward_velocity'] / serp:.2f} | {r['sto']['mean_forward_velocity']:.3f} | {best} "
-                  f"| {d['mean_return']:.1f} ± {d['std_return']:.1f} |")
+                  f"| {gait(d, 'mean_dominant_joint_frequency', '.2f')} | {gait(d, 'max_peak_joint_rate', '.1f')} "
+                  f"| {gait(d, 'mean_outside_friction_cone_share', '.1%')} |")
+
+
+def gait(result: dict, key: str, spec: str) -> str:
+    """One gait metric of a snake-eval result, formatted ("-" where the eval has none)."""
+    value = result.get(key)
+    return "-" if value is None else format(value, spec)
 
 
 def size_key(env: str):

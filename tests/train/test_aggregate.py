@@ -6,6 +6,11 @@ import pytest
 from snake_env.train.aggregate import iqm
 
 
+@pytest.fixture(autouse=True)
+def fewer_resamples(monkeypatch):
+    monkeypatch.setattr("snake_env.train.aggregate.BOOTSTRAP_REPS", 2000)  # 20000 takes seconds per call
+
+
 def test_iqm_is_the_mean_of_the_middle_half():
     # 8 runs: the middle 50 % are 3, 4, 5, 6 whatever the outliers
     scores = np.array([-100.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 1000.0])
