@@ -78,9 +78,10 @@ def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=No
     from snake_env.train.plots import plot_speed_vs_n
 
     serpenoid = {}
+    versions = {env.rsplit("-", 1)[-1] for env, _ in runs}  # the serpenoid searched on the runs' physics
     for env_id in load_gaits():
         env = env_id.split("/")[-1]
-        if (m := SIZE_RE.match(env)):
+        if (m := SIZE_RE.match(env)) and env.rsplit("-", 1)[-1] in versions:
             serpenoid[int(m["n"])] = evaluate_cached(root / f"serpenoid_{env}_{episodes}.json",
                                                      ["--baseline", "serpenoid", "--env", env_id,
                                                       "--episodes", str(episodes)])["mean_forward_velocity"]
