@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -255,15 +256,25 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", default=None, help="YAML to merge the result into (default: ./configs/"
                         "serpenoid.yaml when it exists, else the shipped file)")
+    parser.add_argument("--n-links", type=int, default=None,
+                        help="a length with no id of its own, on the generic id (--env snake_env/Snake-vN): the "
+                             "gait is saved as snake_env/Snake{n}-vN, where the baselines of n_links=n look")
     parser.add_argument("--dry-run", action="store_true", help="print the result, do not write it")
     args = parser.parse_args(argv)
+    env_kwargs, key = {}, args.env_id
+    if args.n_links is not None:
+        generic = re.fullmatch(r"(snake_env/Snake)-(v\d+)", args.env_id)
+        if generic is None or args.n_links < 2:
+            parser.exit(2, f"{parser.prog}: error: --n-links needs the generic id snake_env/Snake-vN and an "
+                           f"integer >= 2, got --env {args.env_id} --n-links {args.n_links}\n")
+        env_kwargs, key = {"n_links": args.n_links}, f"{generic[1]}{args.n_links}-{generic[2]}"
     try:
-        result = search(args.env_id, {}, families=args.families, population=args.population,
+        result = search(args.env_id, env_kwargs, families=args.families, population=args.population,
                         generations=args.generations, search_steps=args.search_steps, repeats=args.repeats,
                         final_episodes=args.final_episodes, seed=args.seed)
     except ValueError as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
-    print(f"{args.env_id}: {result.params} -> {result.speed:.4f} +- {result.speed_std:.4f} m/s "
+    print(f"{key}: {result.params} -> {result.speed:.4f} +- {result.speed_std:.4f} m/s "
           f"({result.evaluated} gaits, {result.seconds:.0f} s)")
     if not args.dry_run:
         import cma
@@ -271,8 +282,8 @@ def main(argv=None) -> int:
         note = (f"cma {cma.__version__} CMA-ES after random search: `python -m snake_env.agents.search --env {args.env_id} "
                 f"--families {' '.join(args.families)} --population {args.population} --generations {args.generations} "
                 f"--search-steps {args.search_steps} --repeats {args.repeats} --final-episodes {args.final_episodes} "
-                f"--seed {args.seed}`")
-        save_result(args.env_id, {}, result, args.output, note=note)
+                f"--seed {args.seed}{f' --n-links {args.n_links}' if args.n_links is not None else ''}`")
+        save_result(key, env_kwargs, result, args.output, note=note)
         print(f"saved to {config_path(GAITS_FILE, args.output)}")
     return 0
 

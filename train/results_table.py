@@ -71,6 +71,17 @@ def speeds_from_csv(path, label: str, into=None) -> dict:
     return speeds
 
 
+def env_arguments(env_id: str) -> list[str]:
+    """snake-eval's arguments for a forward id; a length with no id of its own (a gait searched with
+    ``--n-links``, e.g. snake_env/Snake10-v3) runs on the generic id with n_links."""
+    import gymnasium as gym
+
+    if env_id in gym.registry:
+        return ["--env", env_id]
+    m = re.fullmatch(r"(snake_env/Snake)(\d+)-(v\d+)", env_id)
+    return ["--env", f"{m[1]}-{m[3]}", "--env-kwarg", f"n_links={m[2]}"]
+
+
 def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=None, measured_csv=None) -> None:
     """speed_vs_n.png from the runs (and the measured CSV), the serpenoid of every SnakeN id and the
     earlier CSV."""
@@ -83,7 +94,7 @@ def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=No
         env = env_id.split("/")[-1]
         if (m := SIZE_RE.match(env)) and env.rsplit("-", 1)[-1] in versions:
             serpenoid[int(m["n"])] = evaluate_cached(root / f"serpenoid_{env}_{episodes}.json",
-                                                     ["--baseline", "serpenoid", "--env", env_id,
+                                                     ["--baseline", "serpenoid", *env_arguments(env_id),
                                                       "--episodes", str(episodes)])["mean_forward_velocity"]
     learned = defaultdict(lambda: defaultdict(list))
     for (env, algo), items in runs.items():

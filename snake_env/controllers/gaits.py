@@ -57,6 +57,7 @@ def gait_for_links(n_links: int, path=None, previous_physics: bool = False) -> t
         matches = matches[:-1]
     if not matches:
         raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (run: python -m "
-                         f"snake_env.agents.search --env snake_env/Snake{n_links}-vN, N the newest version)")
+                         f"snake_env.agents.search --env snake_env/Snake{n_links}-vN, or --env snake_env/Snake-vN "
+                         f"--n-links {n_links} for a length with no id of its own; N the newest version)")
     entry = gaits[matches[-1][1]]
     return SerpenoidParams.from_dict(entry["params"]), (entry.get("search") or {}).get("mean_forward_velocity")

@@ -59,3 +59,22 @@ def test_shipped_gaits_reproduce_their_recorded_speed():
         recorded = gaits[env_id]["search"]["mean_forward_velocity"]
         speed = search.rollout_speeds(env_id, env_kwargs, [params] * 8, 1000, seed=123).mean()
         assert speed > 0.8 * recorded > 0
+
+
+def test_a_length_with_no_id_is_searched_on_the_generic_id(tmp_path, capsys):
+    """--n-links n on snake_env/Snake-vN saves the gait as snake_env/Snake{n}-vN, where the baselines of
+    n_links=n look it up (gait_for_links); other ids or lengths are a one-line error, exit 2."""
+    from snake_env.controllers.gaits import gait_for_links
+
+    path = tmp_path / "serpenoid.yaml"
+    args = ["--population", "4", "--generations", "1", "--search-steps", "20", "--repeats", "1",
+            "--final-episodes", "1", "--output", str(path)]
+    assert search.main(["--env", "snake_env/Snake-v3", "--n-links", "4", *args]) == 0
+    gaits = load_gaits(path)
+    assert list(gaits) == ["snake_env/Snake4-v3"] and gaits["snake_env/Snake4-v3"]["env_kwargs"] == {"n_links": 4}
+    assert gait_for_links(4, path)[0] == SerpenoidParams.from_dict(gaits["snake_env/Snake4-v3"]["params"])
+    for bad in (["--env", "snake_env/Snake5-v3", "--n-links", "4"], ["--env", "snake_env/Snake-v3", "--n-links", "1"]):
+        with pytest.raises(SystemExit) as exit_info:
+            search.main([*bad, *args])
+        assert exit_info.value.code == 2
+        assert "--n-links needs the generic id snake_env/Snake-vN" in capsys.readouterr().err

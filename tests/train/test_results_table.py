@@ -45,3 +45,11 @@ def test_tables_give_the_iqm_of_each_id_and_of_all_ids_then_every_seed(capsys, m
     per_seed = [line for line in rows if "| PPO |" in line]
     assert len(per_seed) == 10 and per_seed[0].startswith("| Snake3-v3 | PPO | 0 |")
     assert per_seed[-1].endswith("| 2.50 | - | - |")  # gait metrics the eval lacks are "-"
+
+
+def test_a_length_with_no_id_is_evaluated_on_the_generic_id():
+    import snake_env  # noqa: F401
+    from snake_env.train.results_table import env_arguments
+
+    assert env_arguments("snake_env/Snake12-v3") == ["--env", "snake_env/Snake12-v3"]
+    assert env_arguments("snake_env/Snake10-v3") == ["--env", "snake_env/Snake-v3", "--env-kwarg", "n_links=10"]
