@@ -130,3 +130,21 @@ def test_other_tasks_and_mlp_runs_stay_refused(multi_n_runs, capsys):
         eval_main([str(multi_n_runs["ppo"]), "--env", newest_id("SnakeCommand5"), "--episodes", "1"])
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "the policy reads" in err
+
+
+def test_transfer_table_over_sizes(multi_n_runs, tmp_path, capsys):
+    """python -m snake_env.train.transfer: one row per size, trained sizes marked, ratio to the serpenoid."""
+    from snake_env.train.transfer import main as transfer_main
+
+    out = tmp_path / "transfer.json"
+    assert transfer_main([str(multi_n_runs["ppo"]), "--sizes", "3", "8", "--episodes", "1", "--json", str(out),
+                          "--plot", str(tmp_path / "transfer.png")]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["n_links"], r["trained_on"]) for r in rows] == [(3, True), (8, False)]
+    for r in rows:
+        assert r["ratio"] == pytest.approx(r["speed"] / r["serpenoid"]) and r["serpenoid"] > 0
+    assert "| 8 | no |" in capsys.readouterr().out
+    assert (tmp_path / "transfer.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(SystemExit) as exit_info:
+        transfer_main([str(tmp_path), "--sizes", "3", "--json", str(out)])
+    assert exit_info.value.code == 2
