@@ -60,14 +60,16 @@ def timesteps(run_dir: Path) -> int:
 
 def speeds_from_csv(path, label: str, into=None) -> dict:
     """{(algo, "ALGO (label)"): {n: [speed per seed]}} of the SnakeN rows of a CSV with columns env,
-    algo, seed, speed (m/s), added to ``into`` if given; other ids (Snake-v2, tasks) are skipped."""
+    algo, seed, speed (m/s) and optionally label (the curve's own name, e.g. a JointPolicy run's zero-shot
+    speeds), added to ``into`` if given; other ids (Snake-v2, tasks) are skipped."""
     import csv
 
     speeds = into if into is not None else defaultdict(lambda: defaultdict(list))
     with open(path, newline="") as handle:
         for row in csv.DictReader(handle):
             if (m := SIZE_RE.match(row["env"])):
-                speeds[(row["algo"], f"{row['algo'].upper()} ({label})")][int(m["n"])].append(float(row["speed"]))
+                name = row.get("label") or f"{row['algo'].upper()} ({label})"
+                speeds[(row["algo"], name)][int(m["n"])].append(float(row["speed"]))
     return speeds
 
 

@@ -53,3 +53,12 @@ def test_a_length_with_no_id_is_evaluated_on_the_generic_id():
 
     assert env_arguments("snake_env/Snake12-v3") == ["--env", "snake_env/Snake12-v3"]
     assert env_arguments("snake_env/Snake10-v3") == ["--env", "snake_env/Snake-v3", "--env-kwarg", "n_links=10"]
+
+
+def test_a_csv_row_may_name_its_curve(tmp_path):
+    path = tmp_path / "speeds.csv"
+    path.write_text("env,algo,seed,speed,label\nSnake20-v3,jointpolicy,0,0.17,JointPolicy zero-shot\n"
+                    "Snake5-v3,ppo,0,1.3,\n")
+    speeds = speeds_from_csv(path, "this table")
+    assert dict(speeds[("jointpolicy", "JointPolicy zero-shot")]) == {20: [0.17]}
+    assert dict(speeds[("ppo", "PPO (this table)")]) == {5: [1.3]}
