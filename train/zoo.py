@@ -36,6 +36,9 @@ def zoo_env_wrapper(spec) -> list[dict]:
 def zoo_entry(entry: dict, env_id: str | None = None) -> dict:
     """One env's hyperparameters in the zoo's form."""
     entry = {k: v for k, v in entry.items() if k not in PROJECT_ONLY_KEYS}
+    if entry.get("noise_type") == "pink":  # the zoo's noise_type is action noise (normal, ornstein-uhlenbeck)
+        raise ValueError(f"{env_id}: noise_type pink (snake_env.train.exploration) has no RL Zoo form; "
+                         f"train that entry with snake-train")
     if entry.get("env_wrapper") is not None:
         entry["env_wrapper"] = zoo_env_wrapper(entry["env_wrapper"])
     else:

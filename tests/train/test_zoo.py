@@ -92,3 +92,10 @@ def test_rl_zoo_train_and_enjoy(tmp_path):
                             "--no-render"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert enjoy.returncode == 0, enjoy.stderr[-2000:]
     assert "Episode Length 50" in enjoy.stdout
+
+
+def test_pink_noise_has_no_zoo_form():
+    from snake_env.train.zoo import zoo_entry
+
+    with pytest.raises(ValueError, match="noise_type pink .* has no RL Zoo form"):
+        zoo_entry({"policy": "MlpPolicy", "noise_type": "pink"}, "snake_env/Snake5-v3")
