@@ -102,19 +102,31 @@ def next_segment(log_dir: Path) -> Path:
     return log_dir / f"segment_{max(existing, default=-1) + 1}"
 
 
+_stopping = False  # an interrupt has been raised: the run is saving what it made
+
+
 def _interrupt(signum, frame):
+    """The first Ctrl-C (SIGINT) or SIGTERM ends training with KeyboardInterrupt; any further one while
+    the run saves its model and checkpoint is ignored, so the save is never cut short."""
+    global _stopping
+    if _stopping:
+        print("snake_env: interrupted; saving what the run made, please wait", file=sys.stderr, flush=True)
+        return
+    _stopping = True
     raise KeyboardInterrupt(f"signal {signum}")
 
 
 def install_interrupt_handlers() -> None:
     """Ctrl-C (SIGINT) and SIGTERM both end training through KeyboardInterrupt,
-    which saves the model. SIGINT is set explicitly because a process started
+    which saves the model (:func:`_interrupt`). SIGINT is set explicitly because a process started
     in the background of a non-interactive shell inherits it ignored."""
     import signal
     import threading
 
+    global _stopping
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        _stopping = False
+        signal.signal(signal.SIGINT, _interrupt)
         signal.signal(signal.SIGTERM, _interrupt)
 
 

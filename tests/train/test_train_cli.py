@@ -70,7 +70,8 @@ def test_resume_continues_from_the_newest_checkpoint(tmp_path, algo, capsys):
 
 def test_sigint_saves_model_and_statistics(tmp_path):
     """Even when started with SIGINT ignored (a background job of a
-    non-interactive shell), Ctrl-C saves the model and exits with 130."""
+    non-interactive shell), Ctrl-C saves the model and exits with 130; a second
+    signal (here SIGTERM right after it) waits for the save instead of cutting it short."""
     run_dir = tmp_path / "interrupted"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     process = subprocess.Popen([sys.executable, "-m", "snake_env.train", *train_args("ppo", run_dir, 10_000_000)],
@@ -84,6 +85,7 @@ def test_sigint_saves_model_and_statistics(tmp_path):
             assert time.monotonic() < deadline, "training did not start"
             time.sleep(0.2)
         process.send_signal(signal.SIGINT)
+        process.send_signal(signal.SIGTERM)
         out, err = process.communicate(timeout=60)
     finally:
         if process.poll() is None:
@@ -91,6 +93,7 @@ def test_sigint_saves_model_and_statistics(tmp_path):
     assert process.returncode == 130, err
     assert "Traceback" not in err
     assert "interrupted after" in out
+    assert "saving what the run made, please wait" in err
     assert (run_dir / "model.zip").is_file() and (run_dir / "vecnormalize.pkl").is_file()
     steps, path = latest_checkpoint(run_dir / "checkpoints")
     from stable_baselines3 import PPO
