@@ -22,6 +22,7 @@ from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_rese
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
+from snake_env.physics.actuator_response import ActuatorResponse
 from snake_env.physics.settings import number, split_kwargs
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
@@ -135,6 +136,10 @@ class SnakeBatch:
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
+        # the motors' response in time (torque lag, latency), None when they respond at once (one physics call)
+        self.response = None if config.responds_instantly else ActuatorResponse(
+            self.params, config.torque_lag, config.control_latency, B)
+        self.held_torques = self.torques if self.response is None else self.response.held
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
@@ -155,6 +160,8 @@ class SnakeBatch:
         noise = self.task.reset_noise(rng, rows.size, self.config.n_links)
         q, u, obs, aux = physics.reset(self.params, noise)
         self.q[rows], self.u[rows], self.physics_obs[rows], self.aux[rows] = q, u, obs, aux
+        if self.response is not None:
+            self.response.reset(rows)
         self.task.reset(self.config, self.task_state, rows, rng, q, aux)
 
     def set_state(self, q, u) -> None:
@@ -170,15 +177,18 @@ class SnakeBatch:
         ``checked``: the actions are already a float64 copy clipped by :func:`check_actions`."""
         a = actions if checked else check_actions(actions, self.torques.shape)
         _scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev)
-        if self.report_grip:  # the wheel forces at the step's end come from the step's own sweep
-            physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux,
-                                 self.wheel_force, self.traction_scale)
+        # the wheel forces at the step's end come from the step's own sweep
+        grip = (self.wheel_force, self.traction_scale) if self.report_grip else (None, None)
+        if self.response is None:
+            physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
         else:
-            physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux)
+            power = self.response.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         info, failures = common_step_info(ctx)
+        if self.response is not None:  # from the torques the lagged, delayed command held substep by substep
+            info["actuator_power"] = power
         if self.report_grip:
             info["wheel_lateral_force"] = self.wheel_force.copy()
             info["wheel_slip"] = np.abs(info["wheel_lateral_force"]) > self.grip
@@ -201,8 +211,8 @@ class SnakeBatch:
         return rewards, terminated, info
 
     def wheel_lateral_forces(self) -> np.ndarray:
-        """The wheels' lateral forces (B, n) (N) of the current states under the torques of the last step."""
-        physics.wheel_lateral_forces(self.params, self.q, self.u, self.torques, self.wheel_force,
+        """The wheels' lateral forces (B, n) (N) of the current states under the torques held last."""
+        physics.wheel_lateral_forces(self.params, self.q, self.u, self.held_torques, self.wheel_force,
                                      self.traction_scale)
         return self.wheel_force.copy()
 

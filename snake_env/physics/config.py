@@ -25,6 +25,7 @@ from snake_env.dynamics.validation import check_n_links
 
 from .actuators import ACTUATORS
 from .actuators import resolve as resolve_actuator
+from .actuator_response import latency_substeps
 from .settings import check_fields, setting
 from .stepping import PhysicsParams
 
@@ -127,6 +128,12 @@ class PhysicsConfig:
                                           doc="joint rate at which the driving torque falls to 0 (None: the preset's)")
     torque_limit: float | None = setting(None, "N m", "optional_real", minimum=0.0,
                                          doc="current limit as a joint torque (None: the preset's)")
+    torque_lag: float = setting(0.0, "s", minimum=0.0, strict=False,
+                                doc="time constant of the first-order lag from command to motor torque (the current "
+                                    "loop; MuJoCo's dyntype 'filter'); 0: instant (physics.actuator_response)")
+    control_latency: float = setting(0.0, "s", minimum=0.0, strict=False,
+                                     doc="delay of each command before it reaches the motor: whole sim_dt substeps, "
+                                         "at most one env step; 0: none (physics.actuator_response)")
 
     def __post_init__(self):
         # sim_dt left at its default may be divided into substeps where RK4 needs them (build); an
@@ -148,12 +155,15 @@ class PhysicsConfig:
                 conflicts.append("actuator")
             if self.wheel_friction not in (None, DEFAULT_WHEEL_FRICTION):
                 conflicts.append("wheel_friction")
+            conflicts += [name for name in ("torque_lag", "control_latency") if getattr(self, name) != 0.0]
             if conflicts:
                 raise ValueError(f"paper_model=True fixes joint_damping=0, wheel_damping=0, joint_limit=None, "
-                                 f"actuator='ideal' and wheel_friction=None; do not also pass {', '.join(conflicts)}")
+                                 f"actuator='ideal', wheel_friction=None, torque_lag=0 and control_latency=0; "
+                                 f"do not also pass {', '.join(conflicts)}")
             for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None),
                                 ("actuator", "ideal"), ("wheel_friction", None)):
                 object.__setattr__(self, name, value)
+        latency_substeps(self.control_latency, self.sim_dt, self.frame_skip)  # one-line ValueError if not whole
         object.__setattr__(self, "_motor", resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed,
                                                             self.torque_limit))
 
@@ -161,6 +171,11 @@ class PhysicsConfig:
     def dt(self) -> float:
         """Duration of one env step (s)."""
         return self.sim_dt * self.frame_skip
+
+    @property
+    def responds_instantly(self) -> bool:
+        """Whether a command reaches the joints at once (no torque lag, no latency): the one-call step."""
+        return self.torque_lag == 0.0 and self.control_latency == 0.0
 
     @property
     def previous_physics(self) -> bool:

@@ -162,6 +162,8 @@ class ForwardTask(Task):
     | `wheel_friction` | 0.8 | mu of the wheels on the floor (> 0; rubber on concrete): the traction limit scales the motors' torques, on every substep, by the largest s <= 1 that keeps each wheel's sideways force within mu m_k g (or adds nothing where the motion alone exceeds it); None: unlimited grip (v2) |
     | `actuator` | "servo" | joint motors: "ideal" torque sources (v2), or a DC-motor preset "servo" (1 N m, 3.14 rad/s), "xh430_w350", "dc_motor" (`snake_env.physics.actuators`): the torque T_k = max_torque * a_k is a command, clipped to stall_torque (1 - phidot_k / no_load_speed) above and -stall_torque (1 + phidot_k / no_load_speed) below, then to +-torque_limit |
     | `stall_torque`, `no_load_speed`, `torque_limit` | None | N m, rad/s, N m: override the preset's motor constants |
+    | `torque_lag` | 0.0 | s: time constant of the first-order lag from command to torque (the current loop); 0: instant |
+    | `control_latency` | 0.0 | s: delay of each command before it reaches the motor, whole sim_dt substeps, at most dt; 0: none |
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
     | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
     | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |
