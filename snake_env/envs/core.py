@@ -23,6 +23,7 @@ from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_rese
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
 from snake_env.physics.actuator_response import ActuatorResponse
+from snake_env.physics.randomization import RandomizedRobots
 from snake_env.physics.settings import number, split_kwargs
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
@@ -33,6 +34,7 @@ ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy
 # Without grip the sweep is not paid for (it costs ~0.35 us per snake per step, a 1.1-1.4x slower
 # 1024-env vector env); SnakeEnv.wheel_lateral_forces() computes the forces.
 WHEEL_INFO_KEYS = ("wheel_lateral_force", "wheel_slip", "traction_scale")
+RANDOMIZED_PREFIX = "randomized_"  # reset info of a randomized env: each row's drawn robot (physics.randomization)
 
 
 def make_task_and_config(task, kwargs: dict) -> tuple[Task, PhysicsConfig]:
@@ -139,7 +141,11 @@ class SnakeBatch:
         # the motors' response in time (torque lag, latency), None when they respond at once (one physics call)
         self.response = None if config.responds_instantly else ActuatorResponse(
             self.params, config.torque_lag, config.control_latency, B)
-        self.held_torques = self.torques if self.response is None else self.response.held
+        # per-episode randomization: each row its own robot, stepped row by row
+        self.robots = RandomizedRobots(config, B) if config.randomized else None
+        if self.robots is not None:
+            self.response = None
+            self.grip = self.robots.grip
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
@@ -155,22 +161,30 @@ class SnakeBatch:
         return obs.copy()
 
     def reset(self, mask: np.ndarray, rng: np.random.Generator) -> None:
-        """New episodes for the rows of ``mask``: start noise first, then the task's draws."""
+        """New episodes for the rows of ``mask``: start noise first, then (randomized) the robots, then the
+        task's draws."""
         rows = np.flatnonzero(mask)
         noise = self.task.reset_noise(rng, rows.size, self.config.n_links)
-        q, u, obs, aux = physics.reset(self.params, noise)
+        if self.robots is not None:  # then each row's robot (physics.randomization)
+            q, u, obs, aux = self.robots.reset(rows, noise, rng)
+        else:
+            q, u, obs, aux = physics.reset(self.params, noise)
         self.q[rows], self.u[rows], self.physics_obs[rows], self.aux[rows] = q, u, obs, aux
         if self.response is not None:
             self.response.reset(rows)
         self.task.reset(self.config, self.task_state, rows, rng, q, aux)
 
     def set_state(self, q, u) -> None:
-        obs, aux = physics.observe(self.params, q, u)
+        obs, aux = (physics.observe(self.params, q, u) if self.robots is None
+                    else self.robots.observe(np.asarray(q, np.float64), np.asarray(u, np.float64)))
         self.q[:], self.u[:] = q, u
         self.physics_obs[:], self.aux[:] = obs.reshape(self.physics_obs.shape), aux.reshape(self.aux.shape)
 
     def reset_info(self) -> dict[str, np.ndarray]:
-        return common_reset_info(self.aux)
+        info = common_reset_info(self.aux)
+        if self.robots is not None:  # each row's drawn robot (physical units)
+            info.update({RANDOMIZED_PREFIX + name: value.copy() for name, value in self.robots.draws.items()})
+        return info
 
     def step(self, actions, checked: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,)).
@@ -179,7 +193,10 @@ class SnakeBatch:
         _scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev)
         # the wheel forces at the step's end come from the step's own sweep
         grip = (self.wheel_force, self.traction_scale) if self.report_grip else (None, None)
-        if self.response is None:
+        power = None
+        if self.robots is not None:
+            power = self.robots.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
+        elif self.response is None:
             physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
         else:
             power = self.response.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
@@ -187,8 +204,8 @@ class SnakeBatch:
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         info, failures = common_step_info(ctx)
-        if self.response is not None:  # from the torques the lagged, delayed command held substep by substep
-            info["actuator_power"] = power
+        if power is not None:  # from the torques the lagged, delayed command held substep by substep
+            info["actuator_power"] = np.where(np.isnan(power), info["actuator_power"], power)
         if self.report_grip:
             info["wheel_lateral_force"] = self.wheel_force.copy()
             info["wheel_slip"] = np.abs(info["wheel_lateral_force"]) > self.grip
@@ -212,8 +229,11 @@ class SnakeBatch:
 
     def wheel_lateral_forces(self) -> np.ndarray:
         """The wheels' lateral forces (B, n) (N) of the current states under the torques held last."""
-        physics.wheel_lateral_forces(self.params, self.q, self.u, self.held_torques, self.wheel_force,
-                                     self.traction_scale)
+        if self.robots is not None:
+            self.robots.wheel_lateral_forces(self.q, self.u, self.torques, self.wheel_force, self.traction_scale)
+        else:
+            held = self.torques if self.response is None else self.response.held
+            physics.wheel_lateral_forces(self.params, self.q, self.u, held, self.wheel_force, self.traction_scale)
         return self.wheel_force.copy()
 
     def failure_reasons(self, rows: np.ndarray) -> list[str]:

@@ -33,7 +33,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from snake_env.physics.settings import number
-from .core import TaskEnvBase
+from .core import RANDOMIZED_PREFIX, TaskEnvBase
 from snake_env.physics import AUX_X, AUX_Y
 from .snake import RESET_INFO_KEYS, TRAIL_LENGTH
 
@@ -164,6 +164,7 @@ class SnakeVectorEnv(TaskEnvBase, VectorEnv):
                 reset_info = self._reset_info(reset_mask)
                 for key in RESET_INFO_KEYS:  # those sub-envs report their reset info
                     info[key][reset_mask] = reset_info[key][reset_mask]
+                info.update(_drawn_robots(reset_info))
             self._autoreset = terminated | truncated
         elif self.autoreset_mode == AutoresetMode.SAME_STEP:
             done = terminated | truncated
@@ -188,6 +189,7 @@ class SnakeVectorEnv(TaskEnvBase, VectorEnv):
                         info[key][done] = reset_info[key][done]
                     else:
                         info["_" + key] = info["_" + key] & ~done
+                info.update(_drawn_robots(reset_info))
         else:
             self._autoreset = terminated | truncated
         return obs, rewards, terminated, truncated, info
@@ -210,7 +212,7 @@ class SnakeVectorEnv(TaskEnvBase, VectorEnv):
     def _reset_info(self, mask: np.ndarray) -> dict[str, np.ndarray]:
         info = {}
         for key, value in self._batch.reset_info().items():
-            info[key] = np.where(mask, value, 0.0)
+            info[key] = np.where(mask.reshape(mask.shape + (1,) * (value.ndim - 1)), value, 0.0)
             info["_" + key] = mask.copy()
         return info
 
@@ -259,3 +261,8 @@ class SnakeVectorEnv(TaskEnvBase, VectorEnv):
         state = self.__dict__.copy()
         state["_renderer"] = None
         return state
+
+
+def _drawn_robots(reset_info: dict) -> dict:
+    """The randomized robots drawn at an autoreset (keys ``randomized_*`` and their masks), for the step's info."""
+    return {key: value for key, value in reset_info.items() if key.lstrip("_").startswith(RANDOMIZED_PREFIX)}

@@ -26,6 +26,7 @@ from snake_env.dynamics.validation import check_n_links
 from .actuators import ACTUATORS
 from .actuators import resolve as resolve_actuator
 from .actuator_response import latency_substeps
+from .randomization import resolve as resolve_randomize
 from .settings import check_fields, setting
 from .stepping import PhysicsParams
 
@@ -134,6 +135,9 @@ class PhysicsConfig:
     control_latency: float = setting(0.0, "s", minimum=0.0, strict=False,
                                      doc="delay of each command before it reaches the motor: whole sim_dt substeps, "
                                          "at most one env step; 0: none (physics.actuator_response)")
+    randomize: bool | dict | None = setting(None, "-", "mapping",
+                                            doc="per-episode domain randomization: None (off), True (default "
+                                                "ranges) or {name: [low, high]} (physics.randomization)")
 
     def __post_init__(self):
         # sim_dt left at its default may be divided into substeps where RK4 needs them (build); an
@@ -156,21 +160,31 @@ class PhysicsConfig:
             if self.wheel_friction not in (None, DEFAULT_WHEEL_FRICTION):
                 conflicts.append("wheel_friction")
             conflicts += [name for name in ("torque_lag", "control_latency") if getattr(self, name) != 0.0]
+            if self.randomize not in (None, False):
+                conflicts.append("randomize")
             if conflicts:
                 raise ValueError(f"paper_model=True fixes joint_damping=0, wheel_damping=0, joint_limit=None, "
-                                 f"actuator='ideal', wheel_friction=None, torque_lag=0 and control_latency=0; "
-                                 f"do not also pass {', '.join(conflicts)}")
+                                 f"actuator='ideal', wheel_friction=None, torque_lag=0, control_latency=0 and "
+                                 f"randomize=None; do not also pass {', '.join(conflicts)}")
             for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None),
                                 ("actuator", "ideal"), ("wheel_friction", None)):
                 object.__setattr__(self, name, value)
         latency_substeps(self.control_latency, self.sim_dt, self.frame_skip)  # one-line ValueError if not whole
         object.__setattr__(self, "_motor", resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed,
                                                             self.torque_limit))
+        object.__setattr__(self, "_randomize", resolve_randomize(
+            self.randomize, motor=self._motor is not None, grip=self.wheel_friction is not None,
+            sim_dt=float(self.sim_dt), frame_skip=self.frame_skip))
 
     @property
     def dt(self) -> float:
         """Duration of one env step (s)."""
         return self.sim_dt * self.frame_skip
+
+    @property
+    def randomized(self) -> dict[str, tuple[float, float]]:
+        """The ranges drawn from at every reset ({} without randomization), see physics.randomization."""
+        return self._randomize
 
     @property
     def responds_instantly(self) -> bool:

@@ -42,7 +42,8 @@ def setting(default, unit, kind="real", *, minimum=None, strict=True, maximum=No
     """A dataclass field whose metadata drives :func:`check_fields`.
 
     kind: "real", "int", "bool", "optional_real" (None allowed), "per_link"
-    (scalar or length-n sequence, checked by :class:`SnakeModel`), "choice"
+    (scalar or length-n sequence, checked by :class:`SnakeModel`), "mapping" (checked by the
+    dataclass that owns it), "choice"
     (``maximum`` then holds the allowed values) or "range" (a (low, high) pair).
     """
     return field(default=default, metadata=dict(unit=unit, kind=kind, minimum=minimum, strict=strict,
@@ -53,7 +54,7 @@ def check_value(name: str, value, meta: dict):
     kind = meta["kind"]
     if kind == "bool":
         return flag(name, value)
-    if kind == "per_link":
+    if kind in ("per_link", "mapping"):  # validated by their owner (SnakeModel, physics.randomization)
         return value
     if kind == "choice":
         if value not in meta["maximum"]:

@@ -164,6 +164,7 @@ class ForwardTask(Task):
     | `stall_torque`, `no_load_speed`, `torque_limit` | None | N m, rad/s, N m: override the preset's motor constants |
     | `torque_lag` | 0.0 | s: time constant of the first-order lag from command to torque (the current loop); 0: instant |
     | `control_latency` | 0.0 | s: delay of each command before it reaches the motor, whole sim_dt substeps, at most dt; 0: none |
+    | `randomize` | None | per-episode domain randomization: True (default ranges) or {name: [low, high]} over mass, inertia, stall_torque, no_load_speed, wheel_damping (factors), wheel_friction, control_latency (values); draws in the reset info as `randomized_<name>` (`snake_env.physics.randomization`) |
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
     | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
     | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |

@@ -1,0 +1,195 @@
+"""Per-episode domain randomization (``randomize=``): each episode's robot drawn from ranges around the nominal one.
+
+``randomize=None`` (the default) is off. ``randomize=True`` draws every parameter below from its
+default range; a mapping ``{name: [low, high], ...}`` draws only the names it lists, from the ranges
+it gives (YAML: ``randomize: {mass: [0.9, 1.1], control_latency: [0.0, 0.02]}``). Each reset draws
+uniformly, independently per parameter (and per link for the per-link ones), from the env's seeded
+generator after the start state and the task's draws, so a seed gives the same start and goal with or
+without randomization, and the same draws every time. The drawn values are in the reset ``info`` as
+``randomized_<name>`` (physical units).
+
+| name | kind | default range | unit | source of the default range |
+|---|---|---|---|---|
+| ``mass`` | factor, per link | 0.8-1.2 | x nominal | Tan et al., Sim-to-Real: Learning Agile Locomotion for Quadruped Robots, RSS 2018, Table I: mass 80-120 % |
+| ``inertia`` | factor, per link | 0.5-1.5 | x nominal | Tan et al. 2018, Table I: inertia 50-150 % |
+| ``stall_torque`` | factor | 0.8-1.2 | x nominal | Tan et al. 2018, Table I: motor strength 80-120 % (scales the torque limit too) |
+| ``no_load_speed`` | factor | 0.91-1.09 | x nominal | Tan et al. 2018, Table I: battery voltage 14.0-16.8 V, +-9 % about its middle; a DC motor's no-load speed is proportional to its voltage |
+| ``wheel_damping`` | factor | 0.5-1.5 | x nominal | rolling resistance is poorly known; the same +-50 % as the inertia |
+| ``wheel_friction`` | value | 0.5-1.25 | mu | Tan et al. 2018, Table I: lateral friction 0.5-1.25 |
+| ``control_latency`` | value | 0-0.04 | s | Tan et al. 2018, Table I: control latency 0-40 ms; drawn in whole sim_dt substeps, at most one env step |
+
+The motor's constants are drawn only with a DC-motor actuator and ``wheel_friction`` only with finite
+grip: ``randomize=True`` leaves them out otherwise, and naming them is then an error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+
+import numpy as np
+
+from .actuator_response import ActuatorResponse
+from .stepping import observe, reset, step_inplace, wheel_lateral_forces
+
+# name -> (kind, default low, default high): "factor" multiplies the nominal value, "value" is the value
+RANGES = {
+    "mass": ("factor", 0.8, 1.2),
+    "inertia": ("factor", 0.5, 1.5),
+    "stall_torque": ("factor", 0.8, 1.2),
+    "no_load_speed": ("factor", 0.91, 1.09),
+    "wheel_damping": ("factor", 0.5, 1.5),
+    "wheel_friction": ("value", 0.5, 1.25),
+    "control_latency": ("value", 0.0, 0.04),
+}
+PER_LINK = ("mass", "inertia")
+MOTOR = ("stall_torque", "no_load_speed")
+
+
+def _pair(name, value):
+    kind = RANGES[name][0]
+    unit = "x the nominal value" if kind == "factor" else {"wheel_friction": "mu", "control_latency": "s"}[name]
+    ok = (isinstance(value, (list, tuple)) and len(value) == 2
+          and all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) for v in value))
+    zero_allowed = name in ("wheel_damping", "control_latency")
+    if not ok or not 0.0 <= value[0] <= value[1] or (not zero_allowed and value[0] <= 0.0):
+        lowest = ">= 0" if zero_allowed else "> 0"
+        raise ValueError(f"randomize[{name!r}] must be a pair [low, high] with {lowest} low <= high ({unit}), "
+                         f"got {value!r}")
+    return float(value[0]), float(value[1])
+
+
+def resolve(randomize, *, motor: bool, grip: bool, sim_dt: float, frame_skip: int) -> dict[str, tuple[float, float]]:
+    """The ranges ``randomize`` asks for ({} when off); a bad value is a one-line ValueError naming it."""
+    ranges = _resolve(randomize, motor=motor, grip=grip)
+    if "control_latency" in ranges:  # whole substeps, at most one env step
+        low, high = ranges["control_latency"]
+        dt = sim_dt * frame_skip
+        if high > dt * (1 + 1e-9) or math.floor(high / sim_dt + 1e-9) < math.ceil(low / sim_dt - 1e-9):
+            raise ValueError(f"randomize['control_latency'] must be a range [low, high] (s) within [0, dt = {dt:g}] "
+                             f"that holds a whole number of sim_dt = {sim_dt:g} s substeps, got {[low, high]}")
+    return ranges
+
+
+def _resolve(randomize, *, motor: bool, grip: bool) -> dict[str, tuple[float, float]]:
+    if randomize is None or randomize is False:
+        return {}
+    if randomize is True:
+        return {name: (low, high) for name, (_, low, high) in RANGES.items()
+                if (motor or name not in MOTOR) and (grip or name != "wheel_friction")}
+    if not isinstance(randomize, dict) or not randomize:
+        raise ValueError(f"randomize must be None, True or a non-empty mapping {{name: [low, high]}} with names "
+                         f"from {list(RANGES)}, got {randomize!r}")
+    unknown = sorted(set(randomize) - set(RANGES), key=str)
+    if unknown:
+        raise ValueError(f"randomize has unknown name(s) {unknown}; allowed: {list(RANGES)}")
+    if not motor and any(name in randomize for name in MOTOR):
+        raise ValueError("randomize names a motor constant, but actuator='ideal' has none; pick a DC-motor actuator")
+    if not grip and "wheel_friction" in randomize:
+        raise ValueError("randomize names wheel_friction, but wheel_friction=None (unlimited grip); give a mu")
+    return {name: _pair(name, value) for name, value in randomize.items()}
+
+
+def draw(config, ranges: dict, rng: np.random.Generator) -> tuple[object, dict[str, np.ndarray]]:
+    """One episode's robot: (the PhysicsConfig with the drawn values, {name: drawn value (physical units)})."""
+    n = config.n_links
+    changes, drawn, factors = {}, {}, {}
+    for name, (low, high) in ranges.items():
+        if name == "control_latency":  # whole substeps from ceil(low / sim_dt) to floor(high / sim_dt), <= one step
+            first = math.ceil(low / config.sim_dt - 1e-9)
+            last = math.floor(high / config.sim_dt + 1e-9)
+            changes[name] = int(rng.integers(first, last + 1)) * float(config.sim_dt)
+            continue
+        value = rng.uniform(low, high, n if name in PER_LINK else None)
+        if name in PER_LINK:
+            changes[name] = np.broadcast_to(np.asarray(getattr(config, name), np.float64), (n,)) * value
+        elif name in MOTOR:
+            factors[name] = float(value)
+        elif name == "wheel_damping":
+            changes[name] = config.wheel_damping * float(value)
+        else:  # wheel_friction
+            changes[name] = float(value)
+    if factors:  # motor strength scales the stall torque and the current limit alike
+        motor, strength = config._motor, factors.get("stall_torque", 1.0)
+        changes.update(stall_torque=motor.stall_torque * strength, torque_limit=motor.torque_limit * strength,
+                       no_load_speed=motor.no_load_speed * factors.get("no_load_speed", 1.0))
+    drawn = {name: np.asarray(changes[name], np.float64) for name in ranges}
+    return dataclasses.replace(config, randomize=None, **changes), drawn
+
+
+def stiffest_robot(config, ranges: dict):
+    """The drawable robot with the fastest rates (lightest links, strongest and slowest motors, most wheel
+    damping): if RK4 steps it at the config's sim_dt, it steps every robot the ranges can draw."""
+    corner = {"mass": 0, "inertia": 0, "stall_torque": 1, "no_load_speed": 0, "wheel_damping": 1,
+              "wheel_friction": 0, "control_latency": 0}
+    picks = {name: (low, high)[corner[name]] for name, (low, high) in ranges.items()}
+    # a range [v, v] draws v exactly
+    return draw(config, {name: (value, value) for name, value in picks.items()}, np.random.default_rng(0))[0]
+
+
+class RandomizedRobots:
+    """B rows, each with its own robot drawn at its reset: the physics of a randomized batch, stepped row
+    by row (each row's constants differ, so one compiled call cannot take them all; a row's result is that
+    of a single env with its drawn robot, bit for bit)."""
+
+    def __init__(self, config, num_envs: int):
+        self.config = config
+        self.ranges = config.randomized
+        stiffest_robot(config, self.ranges).build()  # an explicit sim_dt too long for a drawable robot: refused now
+        _, nominal = config.build()
+        self.params = [nominal] * num_envs
+        self.responses = [self._response(config, nominal) for _ in range(num_envs)]
+        self.grip = np.tile(config.grip(), (num_envs, 1))
+        n = config.n_links
+        self.draws = {name: np.zeros((num_envs, n) if name in PER_LINK else num_envs) for name in self.ranges}
+
+    def _response(self, config, params):
+        if config.responds_instantly:
+            return None
+        return ActuatorResponse(params, config.torque_lag, config.control_latency, 1)
+
+    def reset(self, rows, noise, rng):
+        """Draw a robot for each row of ``rows`` and put it at its start state from ``noise`` (rows, n+2);
+        returns (q, u, obs, aux) of those rows."""
+        out = [np.empty((rows.size, self.config.n_links + 2)), np.empty((rows.size, 2)), None, None]
+        for i, b in enumerate(rows):
+            drawn_config, drawn = draw(self.config, self.ranges, rng)
+            _, params = drawn_config.build()
+            self.params[b] = params
+            self.responses[b] = self._response(drawn_config, params)
+            self.grip[b] = drawn_config.grip()
+            for name, value in drawn.items():
+                self.draws[name][b] = value
+            q, u, obs, aux = reset(params, noise[i:i + 1])
+            if out[2] is None:
+                out[2], out[3] = np.empty((rows.size, obs.shape[1])), np.empty((rows.size, aux.shape[1]))
+            out[0][i], out[1][i], out[2][i], out[3][i] = q[0], u[0], obs[0], aux[0]
+        return tuple(out)
+
+    def held_torques(self, torques):
+        """The torque each row held over its last substep (the commanded one without a lag or latency)."""
+        return np.stack([torques[b] if r is None else r.held[0] for b, r in enumerate(self.responses)])
+
+    def step(self, q, u, torques, obs, aux, forces=None, scale=None) -> np.ndarray:
+        """Every row stepped with its own robot, in place; returns the actuator power (W) of the rows with a
+        lag or latency, NaN for the others (theirs comes from the commanded torques)."""
+        power = np.full(q.shape[0], np.nan)
+        for b, (params, response) in enumerate(zip(self.params, self.responses)):
+            row = slice(b, b + 1)
+            grip = (None, None) if forces is None else (forces[row], scale[row])
+            if response is None:
+                step_inplace(params, q[row], u[row], torques[row], obs[row], aux[row], *grip)
+            else:
+                power[b] = response.step(q[row], u[row], torques[row], obs[row], aux[row], *grip)[0]
+        return power
+
+    def observe(self, q, u):
+        pairs = [observe(params, q[b], u[b]) for b, params in enumerate(self.params)]
+        return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+
+    def wheel_lateral_forces(self, q, u, torques, out, scale):
+        held = self.held_torques(torques)
+        for b, params in enumerate(self.params):
+            row = slice(b, b + 1)
+            wheel_lateral_forces(params, q[row], u[row], held[row], out[row], scale[row])
