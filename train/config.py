@@ -55,6 +55,10 @@ META_DEFAULTS = {
     # exploration noise, RL Zoo's key: "pink" (SAC) samples rollout actions with pink noise
     # (snake_env.train.exploration)
     "noise_type": None,
+    # fine-tuning: a run directory (its model.zip) or a model .zip whose policy weights start this run,
+    # e.g. a JointPolicy trained on other sizes (snake-train --init-from); RL Zoo's --trained-agent
+    # continues a whole model instead
+    "init_from": None,
 }
 # the shared per-joint policy (snake_env.train.joint_policy), for PPO and SAC
 JOINT_POLICY = "JointPolicy"
@@ -269,6 +273,16 @@ def _check_positive_int(config, key):
     config[key] = int(value)
 
 
+def init_weights_path(value) -> Path:
+    """The model .zip of ``init_from``: a run directory's model.zip, or a .zip itself; else a one-line error."""
+    path = Path(value) if isinstance(value, (str, Path)) and str(value) else None
+    if path is not None and path.is_dir():
+        path = path / "model.zip"
+    if path is None or path.suffix != ".zip" or not path.is_file():
+        raise ConfigError(f"init_from must be a run directory with a model.zip or a model .zip file, got {value!r}")
+    return path
+
+
 def validate(config: dict) -> dict:
     """Check keys and the meta values; return a normalized copy."""
     config = copy.deepcopy(config)
@@ -290,6 +304,8 @@ def validate(config: dict) -> dict:
         raise ConfigError(f"vec_env must be one of {list(VEC_ENV_KINDS)}, got {config['vec_env']!r}")
     if not isinstance(config["env_kwargs"], dict):
         raise ConfigError(f"env_kwargs must be a mapping, got {config['env_kwargs']!r}")
+    if config["init_from"] is not None:
+        init_weights_path(config["init_from"])
     policy_kwargs_dict(config["policy_kwargs"])  # parse once to report errors early
     from snake_env.wrappers import parse_env_wrapper
 

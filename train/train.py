@@ -44,6 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override a config key; dotted keys reach into env_kwargs/policy_kwargs; repeatable")
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its newest checkpoint")
+    parser.add_argument("--init-from", metavar="RUN_DIR|MODEL.zip",
+                        help="start from another run's policy weights (fine-tuning, e.g. a JointPolicy trained "
+                             "on other sizes); the policy must have the same parameter shapes")
     parser.add_argument("--progress", choices=PROGRESS_MODES, default="auto",
                         help="auto (default): a progress bar on a terminal, a line every 10%% or minute otherwise; "
                              "bar; lines; none")
@@ -65,7 +68,8 @@ def prepare(args) -> tuple[dict, Path, bool]:
         conflicting = [flag for flag, value in (("--algo", args.algo), ("--env", args.env_id),
                                                  ("--config", args.config), ("--seed", args.seed),
                                                  ("--n-envs", args.n_envs), ("--run-dir", args.run_dir),
-                                                 ("--set", args.overrides)) if value]
+                                                 ("--set", args.overrides), ("--init-from", args.init_from))
+                       if value]
         if conflicting:
             raise cfg.ConfigError(f"--resume continues a run with its saved config.yaml; do not combine it with "
                                   f"{', '.join(conflicting)} (only --total-timesteps may change)")
@@ -81,6 +85,9 @@ def prepare(args) -> tuple[dict, Path, bool]:
     cfg.check_algo(args.algo)
     config = cfg.build_config(args.algo, args.env_id, args.config, args.overrides, seed=args.seed,
                               n_timesteps=args.total_timesteps, n_envs=args.n_envs)
+    if args.init_from is not None:
+        config["init_from"] = str(cfg.init_weights_path(args.init_from))
+        config = cfg.validate(config)
     run_dir = Path(args.run_dir) if args.run_dir else default_run_dir(config)
     if (run_dir / "model.zip").exists() or (run_dir / "checkpoints").exists():
         raise cfg.ConfigError(f"run directory {run_dir} already holds a run; use --resume {run_dir} or another --run-dir")
@@ -95,6 +102,19 @@ def build_model(config: dict, venv, verbose: int):
     except (TypeError, ValueError, AssertionError) as exc:
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise cfg.ConfigError(f"invalid {config['algo']} hyperparameters: {message}") from None
+
+
+def load_initial_weights(model, init_from) -> None:
+    """The policy (and optimizer) weights of another run's model into ``model`` (SB3's set_parameters, exact
+    match); a shape or key mismatch is a one-line ConfigError. Normalization statistics are not carried
+    over: the run gathers its own."""
+    path = cfg.init_weights_path(init_from)
+    try:
+        model.set_parameters(str(path), exact_match=True, device="cpu")
+    except (RuntimeError, KeyError, ValueError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise cfg.ConfigError(f"init_from {path}: its weights do not fit this run's policy ({first})") from None
+    print(f"initialized the policy from {path}")
 
 
 def next_segment(log_dir: Path) -> Path:
@@ -191,6 +211,8 @@ def run(config: dict, run_dir: Path, resuming: bool, progress_bar=True, verbose:
         cfg.save_config(config, run_dir / "config.yaml")
         venv = wrap_normalize(venv, config, training=True)
         model = build_model(config, venv, verbose)
+        if config["init_from"] is not None:
+            load_initial_weights(model, config["init_from"])
     else:
         steps, model_path = start
         stats_path = cb.checkpoint_paths(checkpoint_dir, steps)["vecnormalize"]

@@ -39,6 +39,9 @@ def zoo_entry(entry: dict, env_id: str | None = None) -> dict:
     if entry.get("noise_type") == "pink":  # the zoo's noise_type is action noise (normal, ornstein-uhlenbeck)
         raise ValueError(f"{env_id}: noise_type pink (snake_env.train.exploration) has no RL Zoo form; "
                          f"train that entry with snake-train")
+    if entry.pop("init_from", None) is not None:  # the zoo starts from a trained agent by its CLI only
+        raise ValueError(f"{env_id}: init_from has no RL Zoo hyperparameter form; pass the model to "
+                         f"rl_zoo3.train --trained-agent instead")
     if entry.get("env_wrapper") is not None:
         entry["env_wrapper"] = zoo_env_wrapper(entry["env_wrapper"])
     else:

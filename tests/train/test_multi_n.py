@@ -148,3 +148,49 @@ def test_transfer_table_over_sizes(multi_n_runs, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         transfer_main([str(tmp_path), "--sizes", "3", "--json", str(out)])
     assert exit_info.value.code == 2
+
+
+def test_fine_tuning_starts_from_another_runs_weights(multi_n_runs, tmp_path, capsys):
+    """snake-train --init-from: a JointPolicy trained on {3, 5} starts a Snake8 run with exactly its weights,
+    and the run records where they came from."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from snake_env.train.train import build_model, load_initial_weights, main
+    from snake_env.train import config as cfg
+    from snake_env.train.envs import make_vec_env
+
+    source = multi_n_runs["ppo"]
+    write_config(tmp_path / "ppo.yaml", "ppo")
+    entry = yaml.safe_load((tmp_path / "ppo.yaml").read_text())
+    entry[newest_id("Snake8")] = {k: v for k, v in entry[FAMILY].items() if k != "n_links_set"}
+    (tmp_path / "ppo.yaml").write_text(yaml.safe_dump(entry))
+    config = cfg.build_config("ppo", newest_id("Snake8"), str(tmp_path / "ppo.yaml"), [], seed=1)
+    venv = make_vec_env(config, 2, 1)
+    model = build_model(config, venv, 0)
+    load_initial_weights(model, source)
+    trained = PPO.load(source / "model.zip", device="cpu").policy.state_dict()
+    for name, value in model.policy.state_dict().items():
+        assert torch.equal(value, trained[name]), name
+    venv.close()
+    run = tmp_path / "fine"
+    assert main(["--algo", "ppo", "--env", newest_id("Snake8"), "--config", str(tmp_path / "ppo.yaml"),
+                 "--total-timesteps", "256", "--run-dir", str(run), "--init-from", str(source),
+                 "--no-progress-bar"]) == 0
+    assert "initialized the policy from" in capsys.readouterr().out
+    assert yaml.safe_load((run / "config.yaml").read_text())["init_from"] == str(source / "model.zip")
+
+
+def test_init_from_weights_that_do_not_fit_is_a_one_line_error(ppo_run, tmp_path, capsys):
+    from tests.train.conftest import train_args
+
+    from snake_env.train.train import main
+
+    for init, message in ((tmp_path / "missing", "init_from must be a run directory with a model.zip"),
+                          (ppo_run, "its weights do not fit this run's policy")):
+        args = train_args("ppo", tmp_path / f"run_{init.name}", 64, "--init-from", str(init))
+        args[args.index("--env") + 1] = newest_id("Snake5")  # 4 joints against the source's 2: other shapes
+        with pytest.raises(SystemExit) as exit_info:
+            main(args)
+        err = capsys.readouterr().err
+        assert exit_info.value.code == 2 and err.count("\n") == 1 and message in err, err
