@@ -82,10 +82,18 @@ def _round_down(x: float) -> float:
     return math.floor(x / scale) * scale
 
 
-def make_env(kwargs: dict, num_envs: int):
-    """(vector env, sim_dt note) for a cell, or (None, refusal message)."""
+def make_env(kwargs: dict, num_envs: int, auto_substeps: bool = False):
+    """(vector env, sim_dt note) for a cell, or (None, refusal message). ``auto_substeps``: sim_dt left at
+    its default, so the env divides it into the substeps RK4 needs (as a user gets it)."""
     from snake_env.physics.config import PhysicsConfig, max_stable_sim_dt
     from snake_env.envs.vector import SnakeVectorEnv
+
+    if auto_substeps:
+        try:
+            env = SnakeVectorEnv(num_envs=num_envs, **kwargs)
+        except ValueError as exc:
+            return None, str(exc)
+        return env, f"default sim_dt, {env.params.substeps} substeps"
 
     try:  # sim_dt given, so the env refuses what RK4 cannot step at 0.01 s instead of choosing substeps
         return SnakeVectorEnv(num_envs=num_envs, **{"sim_dt": 0.01, **kwargs}), ""
@@ -101,18 +109,21 @@ def make_env(kwargs: dict, num_envs: int):
     frame_skip = math.ceil(ENV_DT / sim_dt - 1e-9)
     if frame_skip > MAX_FRAME_SKIP:
         return None, refusal + f" (needs frame_skip {frame_skip} > {MAX_FRAME_SKIP} for a 0.04 s env step)"
-    env = SnakeVectorEnv(num_envs=num_envs, sim_dt=sim_dt, frame_skip=frame_skip, **kwargs)
+    try:  # kwargs beyond the matrix's (a latency of whole 0.01 s substeps, randomized robots) may not fit it
+        env = SnakeVectorEnv(num_envs=num_envs, sim_dt=sim_dt, frame_skip=frame_skip, **kwargs)
+    except ValueError as exc:
+        return None, f"{refusal}; at sim_dt={sim_dt:.2g} s: {exc}"
     return env, f"sim_dt={sim_dt:.2g} s, frame_skip={frame_skip} (0.01 s refused)"
 
 
 def run_cell(kwargs: dict, num_envs: int = 256, steps: int = 100_000, seed: int = 0,
-             max_seconds: float | None = None) -> dict:
+             max_seconds: float | None = None, auto_substeps: bool = False) -> dict:
     """Fuzz one setting through the vector env; returns the cell's row (see the module doc).
     ``max_seconds``: stop the cell early after this much wall time (the row says how many
     env-steps ran); cells whose every step fails run at a few hundred steps/s."""
     from snake_env import physics
 
-    env, note = make_env(kwargs, num_envs)
+    env, note = make_env(kwargs, num_envs, auto_substeps)
     row = {**kwargs, "note": note}
     if env is None:
         row.update(refused=True, env_steps=0)

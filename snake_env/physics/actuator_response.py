@@ -19,9 +19,11 @@ length h. The torque held over substep j is the lag's exact mean over it,
 impulse of the continuous lag (a zero-order hold of the mean). The env step is
 then ``frame_skip`` checked physics steps of one substep each
 (:func:`snake_env.physics.step_inplace` with frame_skip 1, RK4 substeps and
-refinement as usual), summed into one step's aux row: its work, the centre of
-mass's velocity over dt, the largest residual and refinement count. A row whose
-substep fails is undone as a whole env step (the module doc of
+refinement as usual, each held to energy_tolerance / frame_skip), summed into one
+step's aux row: its work, the centre of mass's velocity over dt, the largest
+refinement count, and the env step's own work-energy residual, checked against
+energy_tolerance as the one-call step checks it. A row whose substep fails, or
+whose env step misses that balance, is undone as a whole env step (the module doc of
 :mod:`snake_env.physics.stepping`): its state and its lag state are those before
 the step.
 
@@ -37,8 +39,8 @@ import math
 
 import numpy as np
 
-from .stepping import (AUX_FAILED, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_VX, AUX_VY, AUX_WORK, AUX_X, AUX_Y,
-                       PhysicsParams, observe, step_inplace, wheel_lateral_forces)
+from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_VX, AUX_VY, AUX_WORK, AUX_X,
+                       AUX_Y, FAIL_ENERGY, PhysicsParams, observe, step_inplace, wheel_lateral_forces)
 
 # relative slack when checking that a latency is a whole number of substeps (0.03 / 0.01 = 2.9999999999999996)
 WHOLE_SUBSTEP_SLACK = 1e-9
@@ -82,7 +84,10 @@ class ActuatorResponse:
 
     def __init__(self, params: PhysicsParams, torque_lag: float, control_latency: float, num_envs: int):
         self.params = params
-        self.substep_params = dataclasses.replace(params, frame_skip=1)
+        # each substep's balance to 1/frame_skip of the tolerance, so that their sum meets the env step's
+        # (checked again over the whole step below)
+        self.substep_params = dataclasses.replace(params, frame_skip=1,
+                                                  energy_tolerance=params.energy_tolerance / params.frame_skip)
         self.frame_skip = params.frame_skip
         self.latency = latency_substeps(control_latency, params.sim_dt, params.frame_skip)
         self.lag = LagCoefficients.of(torque_lag, params.sim_dt)
@@ -114,10 +119,9 @@ class ActuatorResponse:
         sum_j sum_k |held_jk dphi_jk| / dt (W, (B,)) from each substep's held torque."""
         q0, u0 = q.copy(), u.copy()
         saved = self.previous_command.copy(), self.torque.copy(), self.held.copy()
-        x0, y0 = aux[:, AUX_X].copy(), aux[:, AUX_Y].copy()
+        x0, y0, k0 = aux[:, AUX_X].copy(), aux[:, AUX_Y].copy(), aux[:, AUX_KINETIC].copy()
         n = self.params.n_links
         work = np.zeros(q.shape[0])
-        residual = np.zeros(q.shape[0])
         refinements = np.zeros(q.shape[0])
         failed = np.zeros(q.shape[0])
         energy = np.zeros(q.shape[0])
@@ -130,15 +134,20 @@ class ActuatorResponse:
                 step_inplace(self.substep_params, q, u, held, obs, aux, forces, scale)
             energy += np.abs(held * (np.diff(q[:, :n], axis=1) - phi_before)).sum(axis=1)
             work += aux[:, AUX_WORK]
-            np.maximum(residual, aux[:, AUX_RESIDUAL], out=residual)
             np.maximum(refinements, aux[:, AUX_REFINEMENTS], out=refinements)
             failed = np.where(failed == 0.0, aux[:, AUX_FAILED], failed)  # the first failure's reason
+        # the env step's own work-energy balance, as the one-call step checks it (stepping's module doc)
+        k1 = aux[:, AUX_KINETIC]
+        with np.errstate(invalid="ignore"):
+            residual = np.abs(k1 - k0 - work) / (np.maximum(k0, k1) + self.params.energy_floor)
+            unbalanced = (failed == 0.0) & ~(residual <= self.params.energy_tolerance)
+        failed = np.where(unbalanced, float(FAIL_ENERGY), failed)
         self.previous_command[:] = command
         dt = self.params.dt
         aux[:, AUX_VX] = (aux[:, AUX_X] - x0) / dt
         aux[:, AUX_VY] = (aux[:, AUX_Y] - y0) / dt
         aux[:, AUX_WORK] = work
-        aux[:, AUX_RESIDUAL] = residual
+        aux[:, AUX_RESIDUAL] = np.where(failed == 0.0, residual, 0.0)
         aux[:, AUX_REFINEMENTS] = refinements
         aux[:, AUX_FAILED] = failed
         rows = np.flatnonzero(failed)
@@ -151,7 +160,6 @@ class ActuatorResponse:
             row_aux = row_aux.reshape(rows.size, -1)
             row_aux[:, AUX_FAILED] = failed[rows]
             row_aux[:, AUX_REFINEMENTS] = refinements[rows]
-            row_aux[:, AUX_RESIDUAL] = residual[rows]
             aux[rows] = row_aux
             energy[rows] = 0.0
             if forces is not None:

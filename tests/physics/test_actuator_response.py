@@ -54,8 +54,9 @@ def test_split_step_without_lag_equals_the_one_call_step(rng, grip):
     """The substep-by-substep path with no lag and no latency reproduces the one-call step: the same
     RK4 substeps, so the same states; the work is the sum of the substeps' (equal to rounding). Fixed-step
     RK4: with refinement the paths differ where a step is refined (the split path halves only the
-    substep that fails, the one-call path the whole env step)."""
-    env = SnakeEnv(n_links=6, wheel_friction=grip, integrator="rk4")
+    substep that fails, the one-call path the whole env step), and an energy tolerance no step nears (the
+    split path holds each substep to a quarter of it)."""
+    env = SnakeEnv(n_links=6, wheel_friction=grip, integrator="rk4", energy_tolerance=1.0)
     env.reset(seed=3)
     batch = env.unwrapped._batch
     q, u = batch.q.copy(), batch.u.copy()
@@ -83,7 +84,7 @@ def test_env_step_equals_the_pure_api_stepped_substep_by_substep(rng):
     env = SnakeEnv(n_links=5, torque_lag=lag, control_latency=latency)
     env.reset(seed=4)
     params = env.unwrapped.params
-    one = dataclasses.replace(params, frame_skip=1)
+    one = dataclasses.replace(params, frame_skip=1, energy_tolerance=params.energy_tolerance / params.frame_skip)
     h = params.sim_dt
     decay, weight = math.exp(-h / lag), -math.expm1(-h / lag) / (h / lag)  # exp(-h/T), (T/h)(1 - exp(-h/T))
     q, u = env.unwrapped.state
