@@ -27,6 +27,7 @@ from snake_env.physics.randomization import RandomizedRobots
 from snake_env.physics.settings import number, split_kwargs
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
+SLIP_KEY = "reward_slip"  # info key of the optional cost of the wheels' excess over their grip (Task.slip_cost_weight)
 # info of every step when the wheels' grip is modelled (wheel_friction given): per sub-env the wheels'
 # lateral forces (n,) (N, eq. 27's multipliers, from the step's final state and held torques under the
 # traction limit), whether each exceeds its grip mu m_k g (n,) (the motion alone asks more: the wheel
@@ -128,13 +129,16 @@ class SnakeBatch:
         self.num_envs = B
         self.physics_observation_space = physics_observation_space(n, self.params.include_position)
         self.single_observation_space = task.observation_space(config, self.physics_observation_space)
-        energy = (ENERGY_KEY,) if task.energy_cost_weight else ()
+        energy = ((ENERGY_KEY,) if task.energy_cost_weight else ()) + ((SLIP_KEY,) if task.slip_cost_weight else ())
+        if task.slip_cost_weight and config.wheel_friction is None:
+            raise ValueError("slip_cost_weight needs wheel_friction (a mu): with unlimited grip no wheel slips")
         self.report_grip = config.wheel_friction is not None
         self.step_info_keys = (COMMON_STEP_INFO_KEYS + WHEEL_INFO_KEYS * self.report_grip + task.step_info_keys
                                + energy)
         self.wheel_force = np.zeros((B, n))
         self.traction_scale = np.ones(B)
         self.grip = config.grip()
+        self.wheel_load = config.wheel_load()
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
@@ -145,7 +149,7 @@ class SnakeBatch:
         self.robots = RandomizedRobots(config, B) if config.randomized else None
         if self.robots is not None:
             self.response = None
-            self.grip = self.robots.grip
+            self.grip, self.wheel_load = self.robots.grip, self.robots.wheel_load
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
@@ -215,6 +219,12 @@ class SnakeBatch:
             # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default
             info[ENERGY_KEY] = -self.task.energy_cost_weight * info["actuator_power"]
             rewards = rewards + info[ENERGY_KEY]
+        if self.task.slip_cost_weight:
+            # every task: a cost on the wheels' lateral force beyond their grip, in link weights (the motion's
+            # own excess: the traction limit already keeps the motors' torques from adding any)
+            excess = np.maximum(np.abs(info["wheel_lateral_force"]) - self.grip, 0.0) / self.wheel_load
+            info[SLIP_KEY] = -self.task.slip_cost_weight * excess.sum(axis=1)
+            rewards = rewards + info[SLIP_KEY]
         if failures:
             failed = info["sim_failure"]
             # A failed step was undone (the pre-step state is kept): it is not an outcome of

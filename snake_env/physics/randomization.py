@@ -141,6 +141,7 @@ class RandomizedRobots:
         self.params = [nominal] * num_envs
         self.responses = [self._response(config, nominal) for _ in range(num_envs)]
         self.grip = np.tile(config.grip(), (num_envs, 1))
+        self.wheel_load = np.tile(config.wheel_load(), (num_envs, 1))
         n = config.n_links
         self.draws = {name: np.zeros((num_envs, n) if name in PER_LINK else num_envs) for name in self.ranges}
 
@@ -159,6 +160,7 @@ class RandomizedRobots:
             self.params[b] = params
             self.responses[b] = self._response(drawn_config, params)
             self.grip[b] = drawn_config.grip()
+            self.wheel_load[b] = drawn_config.wheel_load()
             for name, value in drawn.items():
                 self.draws[name][b] = value
             q, u, obs, aux = reset(params, noise[i:i + 1])

@@ -268,6 +268,10 @@ class Task:
                                        doc="half-width of the uniform start noise")
     energy_cost_weight: float = setting(0.0, "per W", minimum=0.0, strict=False,
                                         doc="weight of the actuator power in the reward (a cost; 0: none)")
+    slip_cost_weight: float = setting(0.0, "per m g of excess", minimum=0.0, strict=False,
+                                      doc="weight of the wheels' lateral force beyond their grip in the reward "
+                                          "(sum over wheels of max(0, |lambda_k| - mu m_k g) / (m_k g); a cost; "
+                                          "0: none; needs wheel_friction)")
 
     name: ClassVar[str] = ""
     id_prefix: ClassVar[str] = ""
@@ -344,14 +348,15 @@ class Task:
         return None
 
     # ------------------------------------------------------------------ helpers
-    def energy_term(self, info, shape) -> np.ndarray:
-        """The power cost (reward units, <= 0) of the steps behind ``info``: its ``reward_energy``,
-        from one info dict or an array of them (HER's relabelling passes the stored infos)."""
+    def energy_term(self, info, shape, key: str = "reward_energy") -> np.ndarray:
+        """The power cost (reward units, <= 0) of the steps behind ``info``: its ``reward_energy`` (or
+        another cost ``key``, e.g. ``reward_slip``), from one info dict or an array of them (HER's
+        relabelling passes the stored infos)."""
         if info is None:
-            raise ValueError("compute_reward needs the steps' info (its reward_energy) when energy_cost_weight > 0")
+            raise ValueError(f"compute_reward needs the steps' info (its {key}) when a cost weight is > 0")
         if isinstance(info, dict):
-            return np.broadcast_to(np.asarray(info["reward_energy"], np.float64), shape)
-        return np.array([item["reward_energy"] for item in np.ravel(info)], np.float64).reshape(shape)
+            return np.broadcast_to(np.asarray(info[key], np.float64), shape)
+        return np.array([item[key] for item in np.ravel(info)], np.float64).reshape(shape)
 
     @staticmethod
     def total_mass(config: PhysicsConfig) -> float:

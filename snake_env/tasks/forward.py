@@ -106,7 +106,9 @@ class ForwardTask(Task):
     - ctrl_cost = `ctrl_cost_weight` * ||a||^2 with a the clipped action.
     `info` has `reward_forward` and `reward_ctrl` (= -ctrl_cost).
     With `energy_cost_weight` > 0 (every task) the reward also loses
-    `energy_cost_weight` * `actuator_power` (W), reported as `info["reward_energy"]`.
+    `energy_cost_weight` * `actuator_power` (W), reported as `info["reward_energy"]`, and with
+    `slip_cost_weight` > 0 it loses that weight times the wheels' lateral force beyond their grip,
+    sum_k max(0, |lambda_k| - mu m_k g) / (m_k g), reported as `info["reward_slip"]`.
 
     ## Starting State
     theta_k ~ U(-s, s) (rad) for every link, V_1 ~ U(-s, s) (m/s),
@@ -174,6 +176,7 @@ class ForwardTask(Task):
     | `width`, `height` | 480, 480 | frame size (pixels) |
     | `reset_noise_scale` | 0.1 | half-width of the uniform start noise (rad, m/s, rad/s) |
     | `energy_cost_weight` | 0.0 | reward lost per W of actuator power (every task) |
+    | `slip_cost_weight` | 0.0 | reward lost per link weight (m_k g) of lateral wheel force beyond the grip mu m_k g, summed over wheels (every task; info `reward_slip`) |
 
     This task's arguments:
 

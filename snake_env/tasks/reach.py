@@ -117,10 +117,12 @@ class ReachTask(Task):
     def compute_reward(self, achieved_goal, desired_goal, info=None):
         """Reward for goals (..., 2) (m), vectorized over leading axes (the step's reward). ``info``
         (a dict, or an array of the steps' dicts as HER passes them) is read only with
-        ``energy_cost_weight`` > 0, for its ``reward_energy``."""
+        ``energy_cost_weight`` or ``slip_cost_weight`` > 0, for its ``reward_energy`` or ``reward_slip``."""
         reward = self._goal_reward(achieved_goal, desired_goal)
         if self.energy_cost_weight:
             reward = reward + self.energy_term(info, reward.shape)
+        if self.slip_cost_weight:
+            reward = reward + self.energy_term(info, reward.shape, "reward_slip")
         return reward
 
     def _goal_reward(self, achieved_goal, desired_goal):

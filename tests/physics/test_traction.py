@@ -145,3 +145,27 @@ def test_slip_info_flags_only_the_motions_excess():
         assert 0.0 <= info["traction_scale"] <= 1.0
         scales.append(info["traction_scale"])
     assert min(scales) < 0.5
+
+
+def test_slip_cost_is_the_wheels_excess_over_their_grip_in_link_weights(rng):
+    """slip_cost_weight: info reward_slip = -w * sum_k max(0, |lambda_k| - mu m_k g) / (m_k g), and the
+    reward loses exactly that; it needs a finite grip."""
+    from snake_env.envs import SnakeEnv
+
+    kwargs = dict(n_links=5, wheel_friction=0.3, mass=[1.0, 0.5, 2.0, 1.0, 1.5])
+    costed, plain = SnakeEnv(slip_cost_weight=0.7, **kwargs), SnakeEnv(**kwargs)
+    costed.reset(seed=0)
+    plain.reset(seed=0)
+    load = np.array(kwargs["mass"]) * 9.81
+    seen = 0.0
+    for _ in range(60):
+        a = np.sign(rng.uniform(-1, 1, 4))
+        _, r1, _, _, info = costed.step(a)
+        _, r0, _, _, _ = plain.step(a)
+        excess = np.maximum(np.abs(info["wheel_lateral_force"]) - 0.3 * load, 0.0) / load
+        assert info["reward_slip"] == pytest.approx(-0.7 * excess.sum(), abs=1e-15)
+        assert r1 == pytest.approx(r0 + info["reward_slip"], abs=1e-12)
+        seen += excess.sum()
+    assert seen > 0.0  # bang-bang torques on a low-grip snake make the motion exceed the grip
+    with pytest.raises(ValueError, match="slip_cost_weight needs wheel_friction"):
+        SnakeEnv(n_links=5, wheel_friction=None, slip_cost_weight=1.0)
