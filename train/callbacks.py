@@ -270,3 +270,51 @@ class ResidualBurnIn(BaseCallback):
         self._lr_hooks = []
         self._training = False
         self._set_frozen(False)  # a saved or resumed model trains as usual
+
+
+class CriticWarmUp(BaseCallback):
+    """Fine-tuning's start (``snake-train --init-from``): for the first ``steps`` env steps (summed over
+    envs) only the value function learns, on rollouts of the loaded policy; then the actor is released.
+
+    A critic loaded from a run on other sizes (or fresh reward statistics) misjudges the new task's
+    returns, and PPO's first updates follow those advantages: from the JointPolicy trained on
+    n in {5, 8, 12}, plain PPO fine-tuning on Snake30 lost the zero-shot gait (return 50 to 6) within
+    33k steps at lr 3e-4 and at lr 1e-4 (docs/results.md). The same idea as ResidualBurnIn's burn-in,
+    for a policy that is already a gait. The value path is every policy parameter whose name holds
+    "value" or "critic" (SB3's MlpPolicy: ``mlp_extractor.value_net``, ``value_net``; JointPolicy:
+    ``critic_trunk``, ``value_head``); every other one is frozen.
+
+    Args:
+        steps: env steps with the actor frozen, an integer >= 0.
+    """
+
+    def __init__(self, steps: int = 65_536, verbose: int = 0):
+        super().__init__(verbose)
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+            raise ValueError(f"CriticWarmUp steps must be an integer >= 0, got {steps!r}")
+        self.steps = steps
+        self._frozen = False
+
+    def actor_parameters(self):
+        policy = self.model.policy
+        if hasattr(self.model, "actor"):
+            raise ValueError("CriticWarmUp is for PPO (SAC's critic learns from a replay buffer: use learning_starts)")
+        return [param for name, param in policy.named_parameters() if "value" not in name and "critic" not in name]
+
+    def _set_frozen(self, frozen: bool) -> None:
+        for param in self.actor_parameters():
+            param.requires_grad_(not frozen)
+        self._frozen = frozen
+
+    def _on_training_start(self) -> None:
+        self._set_frozen(self.model.num_timesteps < self.steps)
+
+    def _on_step(self) -> bool:
+        if self._frozen and self.model.num_timesteps >= self.steps:
+            self._set_frozen(False)
+            if self.verbose:
+                print(f"CriticWarmUp: actor released at {self.model.num_timesteps} steps")
+        return True
+
+    def _on_training_end(self) -> None:
+        self._set_frozen(False)  # a saved or resumed model trains as usual

@@ -194,3 +194,33 @@ def test_init_from_weights_that_do_not_fit_is_a_one_line_error(ppo_run, tmp_path
             main(args)
         err = capsys.readouterr().err
         assert exit_info.value.code == 2 and err.count("\n") == 1 and message in err, err
+
+
+def test_critic_warm_up_trains_only_the_value_path_then_releases_the_actor(multi_n_runs, tmp_path):
+    """callback CriticWarmUp: a fine-tuning run's actor keeps the loaded weights for the warm-up while its
+    critic changes; a warm-up shorter than the run releases the actor."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from snake_env.train.train import main
+
+    source = multi_n_runs["ppo"]
+    loaded = PPO.load(source / "model.zip", device="cpu").policy.state_dict()
+    write_config(tmp_path / "ppo.yaml", "ppo")
+    entry = yaml.safe_load((tmp_path / "ppo.yaml").read_text())
+    single = {k: v for k, v in entry[FAMILY].items() if k != "n_links_set"}
+    for steps, name in ((10_000, "held"), (256, "released")):
+        single["callback"] = [{"snake_env.train.callbacks.CriticWarmUp": {"steps": steps}}]
+        entry[newest_id("Snake8")] = single
+        (tmp_path / "ppo.yaml").write_text(yaml.safe_dump(entry))
+        run = tmp_path / name
+        assert main(["--algo", "ppo", "--env", newest_id("Snake8"), "--config", str(tmp_path / "ppo.yaml"),
+                     "--total-timesteps", "1024", "--run-dir", str(run), "--init-from", str(source),
+                     "--no-progress-bar"]) == 0
+        after = PPO.load(run / "model.zip", device="cpu").policy.state_dict()
+        actor = [k for k in after if "value" not in k and "critic" not in k]
+        critic = [k for k in after if k not in actor]
+        assert actor and critic
+        assert any(not torch.equal(after[k], loaded[k]) for k in critic)
+        unchanged = all(torch.equal(after[k], loaded[k]) for k in actor)
+        assert unchanged == (name == "held"), name
