@@ -99,3 +99,11 @@ def test_pink_noise_has_no_zoo_form():
 
     with pytest.raises(ValueError, match="noise_type pink .* has no RL Zoo form"):
         zoo_entry({"policy": "MlpPolicy", "noise_type": "pink"}, "snake_env/Snake5-v3")
+
+
+def test_init_from_has_no_zoo_hyperparameter_form():
+    from snake_env.train.zoo import zoo_entry
+
+    with pytest.raises(ValueError, match="init_from has no RL Zoo hyperparameter form"):
+        zoo_entry({"policy": "MlpPolicy", "init_from": "runs/joint"}, "snake_env/Snake30-v3")
+    assert "init_from" not in zoo_entry({"policy": "MlpPolicy", "init_from": None}, "snake_env/Snake30-v3")
