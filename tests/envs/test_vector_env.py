@@ -10,6 +10,7 @@ from gymnasium.vector import AutoresetMode
 
 from snake_env.envs import SnakeEnv, SnakeVectorEnv
 from snake_env.envs.snake import STEP_INFO_KEYS
+from tests.rows import assert_rows_step_like_singles
 
 
 def test_make_vec_builds_the_batched_env():
@@ -66,13 +67,7 @@ def test_batch_rows_equal_independent_single_envs(rng):
         env = SnakeEnv(n_links=5)
         env.set_state(q[b], u[b])
         singles.append(env)
-    for _ in range(25):
-        a = rng.uniform(-1, 1, (4, 4)).astype(np.float32)
-        obs, rewards, _, _, info = vec.step(a)
-        for b, env in enumerate(singles):
-            o, r, _, _, i = env.step(a[b])
-            np.testing.assert_array_equal(o, obs[b])
-            assert r == rewards[b] and i["power"] == info["power"][b]
+    assert_rows_step_like_singles(vec, singles, rng, 25, ["power"])
 
 
 def test_next_step_autoreset_semantics():

@@ -12,6 +12,7 @@ import pytest
 from snake_env.envs import SnakeEnv, SnakeVectorEnv
 from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_WORK, AUX_X, PhysicsConfig, step, step_inplace
 from snake_env.physics.actuator_response import ActuatorResponse
+from tests.rows import assert_rows_step_like_singles
 
 
 def continuous_mean(command, start, lag, t0, t1, points=20001):
@@ -150,13 +151,7 @@ def test_vector_rows_equal_single_envs_and_autoreset_clears_the_lag(rng):
         env = SnakeEnv(**kwargs)
         env.set_state(q[b], u[b])
         singles.append(env)
-    for _ in range(5):
-        a = rng.uniform(-1, 1, (3, 4)).astype(np.float32)
-        obs, rewards, _, _, info = vec.step(a)
-        for b, env in enumerate(singles):
-            o, r, _, _, i = env.step(a[b])
-            np.testing.assert_array_equal(o, obs[b])
-            assert r == rewards[b] and i["actuator_power"] == info["actuator_power"][b]
+    assert_rows_step_like_singles(vec, singles, rng, 5, ["actuator_power"])
     response = vec._batch.response
     assert np.all(response.torque != 0.0)
     vec.step(np.ones((3, 4), np.float32))  # the 6th step truncates; the next one resets

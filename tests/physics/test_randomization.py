@@ -9,6 +9,7 @@ import pytest
 from snake_env.envs import SnakeEnv, SnakeVectorEnv
 from snake_env.physics import PhysicsConfig
 from snake_env.physics.randomization import RANGES
+from tests.rows import assert_rows_step_like_singles
 
 FULL = ("mass", "inertia", "stall_torque", "no_load_speed", "wheel_damping", "wheel_friction", "control_latency")
 
@@ -73,14 +74,7 @@ def test_each_row_is_the_robot_it_reports(rng):
         env.reset(seed=0)
         env.set_state(q[b], u[b])
         rows.append(env)
-    for _ in range(20):
-        a = rng.uniform(-1, 1, (3, 4)).astype(np.float32)
-        obs, rewards, _, _, step_info = vec.step(a)
-        for b, env in enumerate(rows):
-            o, r, _, _, i = env.step(a[b])
-            np.testing.assert_array_equal(o, obs[b])
-            assert r == rewards[b]
-            np.testing.assert_array_equal(i["wheel_lateral_force"], step_info["wheel_lateral_force"][b])
+    assert_rows_step_like_singles(vec, rows, rng, 20, ["wheel_lateral_force"])
 
 
 def test_off_by_default_and_named_ranges_draw_only_those():
