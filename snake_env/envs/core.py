@@ -142,14 +142,13 @@ class SnakeBatch:
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
-        # the motors' response in time (torque lag, latency), None when they respond at once (one physics call)
-        self.response = None if config.responds_instantly else ActuatorResponse(
-            self.params, config.torque_lag, config.control_latency, B)
-        # per-episode randomization: each row its own robot, stepped row by row
+        # per-episode randomization: each row its own robot (and motor response), stepped row by row
         self.robots = RandomizedRobots(config, B) if config.randomized else None
         if self.robots is not None:
-            self.response = None
             self.grip, self.wheel_load = self.robots.grip, self.robots.wheel_load
+        # the motors' response in time (torque lag, latency), None when they respond at once (one physics call)
+        self.response = (ActuatorResponse(self.params, config.torque_lag, config.control_latency, B)
+                         if self.robots is None and not config.responds_instantly else None)
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
