@@ -3,8 +3,9 @@
 The single env is a batch of one and the vector env a batch of B; both hold a
 :class:`SnakeBatch` and only add the Gymnasium API around it (scalars and a
 TimeLimit wrapper for the one, autoreset and batched info for the other).
-The batched physics call is :func:`snake_env.physics.step_inplace`, here
-and nowhere else; a row's result does not depend on the batch it is in, so a
+The batched physics call is the batch physics of :mod:`snake_env.physics.batch` (one
+:func:`snake_env.physics.step_inplace` call unless the motors respond in time or the robots are
+randomized), here and nowhere else; a row's result does not depend on the batch it is in, so a
 vector env equals N single envs step by step.
 """
 
@@ -22,8 +23,7 @@ from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_rese
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
-from snake_env.physics.actuator_response import ActuatorResponse
-from snake_env.physics.randomization import RandomizedRobots
+from snake_env.physics.batch import batch_physics
 from snake_env.physics.settings import number, split_kwargs
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
@@ -137,18 +137,12 @@ class SnakeBatch:
                                + energy)
         self.wheel_force = np.zeros((B, n))
         self.traction_scale = np.ones(B)
-        self.grip = config.grip()
-        self.wheel_load = config.wheel_load()
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
-        # per-episode randomization: each row its own robot (and motor response), stepped row by row
-        self.robots = RandomizedRobots(config, B) if config.randomized else None
-        if self.robots is not None:
-            self.grip, self.wheel_load = self.robots.grip, self.robots.wheel_load
-        # the motors' response in time (torque lag, latency), None when they respond at once (one physics call)
-        self.response = (ActuatorResponse(self.params, config.torque_lag, config.control_latency, B)
-                         if self.robots is None and not config.responds_instantly else None)
+        # one compiled call, a motor response in time, or a robot per row (randomize): physics.batch
+        self.physics = batch_physics(config, self.params, B)
+        self.grip, self.wheel_load = self.physics.grip, self.physics.wheel_load
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
@@ -168,25 +162,19 @@ class SnakeBatch:
         task's draws."""
         rows = np.flatnonzero(mask)
         noise = self.task.reset_noise(rng, rows.size, self.config.n_links)
-        if self.robots is not None:  # then each row's robot (physics.randomization)
-            q, u, obs, aux = self.robots.reset(rows, noise, rng)
-        else:
-            q, u, obs, aux = physics.reset(self.params, noise)
+        q, u, obs, aux = self.physics.reset(rows, noise, rng)  # a randomized batch draws its robots here
         self.q[rows], self.u[rows], self.physics_obs[rows], self.aux[rows] = q, u, obs, aux
-        if self.response is not None:
-            self.response.reset(rows)
         self.task.reset(self.config, self.task_state, rows, rng, q, aux)
 
     def set_state(self, q, u) -> None:
-        obs, aux = (physics.observe(self.params, q, u) if self.robots is None
-                    else self.robots.observe(np.asarray(q, np.float64), np.asarray(u, np.float64)))
+        obs, aux = self.physics.observe(np.asarray(q, np.float64), np.asarray(u, np.float64))
         self.q[:], self.u[:] = q, u
         self.physics_obs[:], self.aux[:] = obs.reshape(self.physics_obs.shape), aux.reshape(self.aux.shape)
 
     def reset_info(self) -> dict[str, np.ndarray]:
         info = common_reset_info(self.aux)
-        if self.robots is not None:  # each row's drawn robot (physical units)
-            info.update({RANDOMIZED_PREFIX + name: value.copy() for name, value in self.robots.draws.items()})
+        # a randomized batch: each row's drawn robot (physical units)
+        info.update({RANDOMIZED_PREFIX + name: value.copy() for name, value in self.physics.draws.items()})
         return info
 
     def step(self, actions, checked: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -196,18 +184,12 @@ class SnakeBatch:
         _scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev)
         # the wheel forces at the step's end come from the step's own sweep
         grip = (self.wheel_force, self.traction_scale) if self.report_grip else (None, None)
-        power = None
-        if self.robots is not None:
-            power = self.robots.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
-        elif self.response is None:
-            physics.step_inplace(self.params, self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
-        else:
-            power = self.response.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
+        power = self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         info, failures = common_step_info(ctx)
-        if power is not None:  # from the torques the lagged, delayed command held substep by substep
+        if power is not None:  # from the torques a lagged, delayed command held substep by substep
             info["actuator_power"] = np.where(np.isnan(power), info["actuator_power"], power)
         if self.report_grip:
             info["wheel_lateral_force"] = self.wheel_force.copy()
@@ -238,11 +220,7 @@ class SnakeBatch:
 
     def wheel_lateral_forces(self) -> np.ndarray:
         """The wheels' lateral forces (B, n) (N) of the current states under the torques held last."""
-        if self.robots is not None:
-            self.robots.wheel_lateral_forces(self.q, self.u, self.torques, self.wheel_force, self.traction_scale)
-        else:
-            held = self.torques if self.response is None else self.response.held
-            physics.wheel_lateral_forces(self.params, self.q, self.u, held, self.wheel_force, self.traction_scale)
+        self.physics.wheel_lateral_forces(self.q, self.u, self.torques, self.wheel_force, self.traction_scale)
         return self.wheel_force.copy()
 
     def failure_reasons(self, rows: np.ndarray) -> list[str]:

@@ -40,7 +40,8 @@ import math
 import numpy as np
 
 from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_VX, AUX_VY, AUX_WORK, AUX_X,
-                       AUX_Y, FAIL_ENERGY, PhysicsParams, observe, step_inplace, wheel_lateral_forces)
+                       AUX_Y, FAIL_ENERGY, InstantPhysics, PhysicsParams, observe, step_inplace,
+                       wheel_lateral_forces)
 
 # relative slack when checking that a latency is a whole number of substeps (0.03 / 0.01 = 2.9999999999999996)
 WHOLE_SUBSTEP_SLACK = 1e-9
@@ -75,15 +76,17 @@ class LagCoefficients:
         return cls(math.exp(-x), -math.expm1(-x) / x)
 
 
-class ActuatorResponse:
-    """The latency and lag state of B motors' rows, and the env step that advances them with the physics.
+class ActuatorResponse(InstantPhysics):
+    """The latency and lag state of B motors' rows, and the env step that advances them with the physics
+    (the interface of :class:`~snake_env.physics.stepping.InstantPhysics`).
 
     State per row: the command of the previous env step (N m, (B, n-1)) and the lag's torque (N m);
     both 0 at reset (a motor at rest with no command). ``held`` is the torque held over the last
     substep (the wheel forces' torques)."""
 
-    def __init__(self, params: PhysicsParams, torque_lag: float, control_latency: float, num_envs: int):
-        self.params = params
+    def __init__(self, config, params: PhysicsParams, num_envs: int):
+        super().__init__(config, params, num_envs)
+        torque_lag, control_latency = config.torque_lag, config.control_latency
         # each substep's balance to 1/frame_skip of the tolerance, so that their sum meets the env step's
         # (checked again over the whole step below)
         self.substep_params = dataclasses.replace(params, frame_skip=1,
@@ -96,10 +99,14 @@ class ActuatorResponse:
         self.torque = np.zeros(shape)  # the lag's state at the end of the last substep
         self.held = np.zeros(shape)
 
-    def reset(self, rows: np.ndarray) -> None:
+    def reset(self, rows, noise, rng):
         self.previous_command[rows] = 0.0
         self.torque[rows] = 0.0
         self.held[rows] = 0.0
+        return super().reset(rows, noise, rng)
+
+    def held_torques(self, torques):
+        return self.held
 
     def substep_torques(self, command: np.ndarray, j: int) -> np.ndarray:
         """The torque held over substep j of this step (advances the lag's state); see the module doc."""

@@ -31,7 +31,9 @@ import numbers
 import numpy as np
 
 from .actuator_response import ActuatorResponse
-from .stepping import observe, reset, step_inplace, wheel_lateral_forces
+from .stepping import InstantPhysics
+
+_FIRST = np.zeros(1, np.int64)  # the one row of a single robot's batch
 
 # name -> (kind, default low, default high): "factor" multiplies the nominal value, "value" is the value
 RANGES = {
@@ -128,70 +130,67 @@ def stiffest_robot(config, ranges: dict):
     return draw(config, {name: (value, value) for name, value in picks.items()}, np.random.default_rng(0))[0]
 
 
+def one_robot(config, params, num_envs: int = 1):
+    """The batch physics of one robot's rows: instant commands, or a motor response in time."""
+    if config.responds_instantly:
+        return InstantPhysics(config, params, num_envs)
+    return ActuatorResponse(config, params, num_envs)
+
+
 class RandomizedRobots:
     """B rows, each with its own robot drawn at its reset: the physics of a randomized batch, stepped row
     by row (each row's constants differ, so one compiled call cannot take them all; a row's result is that
-    of a single env with its drawn robot, bit for bit)."""
+    of a single env with its drawn robot, bit for bit). The interface of
+    :class:`~snake_env.physics.stepping.InstantPhysics`; each row is one of those (or an
+    :class:`~snake_env.physics.actuator_response.ActuatorResponse`) of its own."""
 
     def __init__(self, config, num_envs: int):
         self.config = config
         self.ranges = config.randomized
         stiffest_robot(config, self.ranges).build()  # an explicit sim_dt too long for a drawable robot: refused now
         _, nominal = config.build()
-        self.params = [nominal] * num_envs
-        self.responses = [self._response(config, nominal) for _ in range(num_envs)]
+        self.rows = [one_robot(config, nominal) for _ in range(num_envs)]
         self.grip = np.tile(config.grip(), (num_envs, 1))
         self.wheel_load = np.tile(config.wheel_load(), (num_envs, 1))
         n = config.n_links
         self.draws = {name: np.zeros((num_envs, n) if name in PER_LINK else num_envs) for name in self.ranges}
 
-    def _response(self, config, params):
-        if config.responds_instantly:
-            return None
-        return ActuatorResponse(params, config.torque_lag, config.control_latency, 1)
-
     def reset(self, rows, noise, rng):
         """Draw a robot for each row of ``rows`` and put it at its start state from ``noise`` (rows, n+2);
         returns (q, u, obs, aux) of those rows."""
-        out = [np.empty((rows.size, self.config.n_links + 2)), np.empty((rows.size, 2)), None, None]
+        parts = []
         for i, b in enumerate(rows):
             drawn_config, drawn = draw(self.config, self.ranges, rng)
             _, params = drawn_config.build()
-            self.params[b] = params
-            self.responses[b] = self._response(drawn_config, params)
+            self.rows[b] = one_robot(drawn_config, params)
             self.grip[b] = drawn_config.grip()
             self.wheel_load[b] = drawn_config.wheel_load()
             for name, value in drawn.items():
                 self.draws[name][b] = value
-            q, u, obs, aux = reset(params, noise[i:i + 1])
-            if out[2] is None:
-                out[2], out[3] = np.empty((rows.size, obs.shape[1])), np.empty((rows.size, aux.shape[1]))
-            out[0][i], out[1][i], out[2][i], out[3][i] = q[0], u[0], obs[0], aux[0]
-        return tuple(out)
+            parts.append(self.rows[b].reset(_FIRST, noise[i:i + 1], rng))
+        return tuple(np.concatenate(arrays) for arrays in zip(*parts))
 
     def held_torques(self, torques):
         """The torque each row held over its last substep (the commanded one without a lag or latency)."""
-        return np.stack([torques[b] if r is None else r.held[0] for b, r in enumerate(self.responses)])
+        return np.concatenate([row.held_torques(torques[b:b + 1]) for b, row in enumerate(self.rows)])
 
     def step(self, q, u, torques, obs, aux, forces=None, scale=None) -> np.ndarray:
         """Every row stepped with its own robot, in place; returns the actuator power (W) of the rows with a
         lag or latency, NaN for the others (theirs comes from the commanded torques)."""
         power = np.full(q.shape[0], np.nan)
-        for b, (params, response) in enumerate(zip(self.params, self.responses)):
-            row = slice(b, b + 1)
-            grip = (None, None) if forces is None else (forces[row], scale[row])
-            if response is None:
-                step_inplace(params, q[row], u[row], torques[row], obs[row], aux[row], *grip)
-            else:
-                power[b] = response.step(q[row], u[row], torques[row], obs[row], aux[row], *grip)[0]
+        for b, row in enumerate(self.rows):
+            r = slice(b, b + 1)
+            grip = (None, None) if forces is None else (forces[r], scale[r])
+            row_power = row.step(q[r], u[r], torques[r], obs[r], aux[r], *grip)
+            if row_power is not None:
+                power[b] = row_power[0]
         return power
 
     def observe(self, q, u):
-        pairs = [observe(params, q[b], u[b]) for b, params in enumerate(self.params)]
-        return np.stack([p[0] for p in pairs]), np.stack([p[1] for p in pairs])
+        pairs = [row.observe(q[b:b + 1], u[b:b + 1]) for b, row in enumerate(self.rows)]
+        return np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs])
 
     def wheel_lateral_forces(self, q, u, torques, out, scale):
-        held = self.held_torques(torques)
-        for b, params in enumerate(self.params):
-            row = slice(b, b + 1)
-            wheel_lateral_forces(params, q[row], u[row], held[row], out[row], scale[row])
+        for b, row in enumerate(self.rows):
+            r = slice(b, b + 1)
+            row.wheel_lateral_forces(q[r], u[r], torques[r], out[r], scale[r])

@@ -890,3 +890,37 @@ def announce_compile() -> bool:
     _compile_announced = True
     print(COMPILE_NOTICE, file=sys.stderr, flush=True)
     return True
+
+
+class InstantPhysics:
+    """B snakes whose commands reach the joints at once, stepped by one compiled call (:func:`step_inplace`).
+
+    The interface every batch physics shares (:func:`snake_env.physics.batch.batch_physics` picks one):
+    ``reset(rows, noise, rng)``, ``observe(q, u)``, ``step(q, u, torques, obs, aux, forces, scale)``
+    (returns the actuator power (W, (B,)) where it differs from the commanded torques', else None),
+    ``wheel_lateral_forces``, the wheels' ``grip`` and ``wheel_load`` (N, (B, n) or (n,)) and the
+    per-row ``draws`` of a randomized batch ({} here)."""
+
+    def __init__(self, config, params: PhysicsParams, num_envs: int):
+        self.params = params
+        self.grip = config.grip()
+        self.wheel_load = config.wheel_load()
+        self.draws: dict[str, np.ndarray] = {}
+
+    def reset(self, rows, noise, rng):
+        """(q, u, obs, aux) of the new episodes of ``rows`` from their start ``noise`` (rows, n+2)."""
+        return reset(self.params, noise)
+
+    def observe(self, q, u):
+        return observe(self.params, q, u)
+
+    def step(self, q, u, torques, obs, aux, forces=None, scale=None):
+        step_inplace(self.params, q, u, torques, obs, aux, forces, scale)
+        return None
+
+    def held_torques(self, torques):
+        """The torques (N m) held over the last substep of every row."""
+        return torques
+
+    def wheel_lateral_forces(self, q, u, torques, out, scale) -> None:
+        wheel_lateral_forces(self.params, q, u, self.held_torques(torques), out, scale)

@@ -29,7 +29,7 @@ def test_step_response_shows_the_lag_and_the_latency(lag, latency):
     continuous lag's mean over it, 0 until the latency has passed."""
     config = PhysicsConfig(n_links=4, torque_lag=lag, control_latency=latency)
     _, params = config.build()
-    response = ActuatorResponse(params, lag, latency, num_envs=1)
+    response = ActuatorResponse(config, params, num_envs=1)
     command = np.full((1, 3), 0.8)
     h = params.sim_dt
     held = []
@@ -61,7 +61,7 @@ def test_split_step_without_lag_equals_the_one_call_step(rng, grip):
     env.reset(seed=3)
     batch = env.unwrapped._batch
     q, u = batch.q.copy(), batch.u.copy()
-    response = ActuatorResponse(batch.params, 0.0, 0.0, num_envs=1)
+    response = ActuatorResponse(batch.config, batch.params, num_envs=1)
     obs_split, aux_split = batch.physics_obs.copy(), batch.aux.copy()
     obs_one, aux_one = batch.physics_obs.copy(), batch.aux.copy()
     q1, u1 = q.copy(), u.copy()
@@ -133,12 +133,12 @@ def test_a_failed_step_is_undone_with_its_lag_state():
     env.reset(seed=1)
     batch = env.unwrapped._batch
     q0 = batch.q.copy()
-    torque0 = batch.response.torque.copy()
+    torque0 = batch.physics.torque.copy()
     with pytest.warns(RuntimeWarning, match="simulation failure"):
         _, reward, _, _, info = env.step(np.ones(4))
     assert info["sim_failure"] and reward == 0.0 and info["x_velocity"] == 0.0
     np.testing.assert_array_equal(batch.q, q0)
-    np.testing.assert_array_equal(batch.response.torque, torque0)
+    np.testing.assert_array_equal(batch.physics.torque, torque0)
 
 
 def test_vector_rows_equal_single_envs_and_autoreset_clears_the_lag(rng):
@@ -152,7 +152,7 @@ def test_vector_rows_equal_single_envs_and_autoreset_clears_the_lag(rng):
         env.set_state(q[b], u[b])
         singles.append(env)
     assert_rows_step_like_singles(vec, singles, rng, 5, ["actuator_power"])
-    response = vec._batch.response
+    response = vec._batch.physics
     assert np.all(response.torque != 0.0)
     vec.step(np.ones((3, 4), np.float32))  # the 6th step truncates; the next one resets
     vec.step(np.ones((3, 4), np.float32))

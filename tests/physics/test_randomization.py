@@ -120,7 +120,7 @@ def test_stiff_draws_get_their_substeps_with_the_default_sim_dt():
     """Light links drawn under the default sim_dt are run with more substeps, not refused."""
     env = SnakeEnv(n_links=5, randomize={"inertia": [0.01, 0.02]})
     env.reset(seed=0)
-    robots = env.unwrapped._batch.robots
-    assert robots.params[0].substeps > 1 and math.isclose(env.unwrapped.dt, 0.04)
+    robots = env.unwrapped._batch.physics
+    assert robots.rows[0].params.substeps > 1 and math.isclose(env.unwrapped.dt, 0.04)
     for _ in range(20):
         assert not env.step(np.ones(4))[4]["sim_failure"]
