@@ -6,6 +6,9 @@
 - :mod:`.stepping`: the checked, batched step (Brax style: a pure function of
   state and torques, batching a leading axis) over the compiled kernels of
   :mod:`snake_env.dynamics.compiled`.
+- :mod:`.actuator_response`: the motor's torque lag and control latency, stepped
+  substep by substep; :mod:`.randomization`: per-episode domain randomization, a
+  robot per row; :mod:`.batch`: which of these (or one compiled call) steps a batch.
 
 Layers read top-down: dynamics -> physics -> controllers -> tasks -> envs ->
 wrappers; nothing here imports a layer above it.
