@@ -276,11 +276,11 @@ class CriticWarmUp(BaseCallback):
     """Fine-tuning's start (``snake-train --init-from``): for the first ``steps`` env steps (summed over
     envs) only the value function learns, on rollouts of the loaded policy; then the actor is released.
 
-    A critic loaded from a run on other sizes (or fresh reward statistics) misjudges the new task's
-    returns, and PPO's first updates follow those advantages: from the JointPolicy trained on
-    n in {5, 8, 12}, plain PPO fine-tuning on Snake30 lost the zero-shot gait (return 50 to 6) within
-    33k steps at lr 3e-4 and at lr 1e-4 (docs/results.md). The same idea as ResidualBurnIn's burn-in,
-    for a policy that is already a gait. The value path is every policy parameter whose name holds
+    A critic loaded from a run on other sizes (or with fresh reward statistics) misjudges the new
+    task's returns, and PPO's first updates follow its advantages; with the actor held, the critic
+    first learns what the loaded gait is worth (docs/results.md, "One policy for every length", for
+    the runs with and without it). The same idea as ResidualBurnIn's burn-in, for a policy that is
+    already a gait. The value path is every policy parameter whose name holds
     "value" or "critic" (SB3's MlpPolicy: ``mlp_extractor.value_net``, ``value_net``; JointPolicy:
     ``critic_trunk``, ``value_head``); every other one is frozen.
 
