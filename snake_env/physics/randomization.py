@@ -4,8 +4,9 @@
 default range; a mapping ``{name: [low, high], ...}`` draws only the names it lists, from the ranges
 it gives (YAML: ``randomize: {mass: [0.9, 1.1], control_latency: [0.0, 0.02]}``). Each reset draws
 uniformly, independently per parameter (and per link for the per-link ones), from the env's seeded
-generator after the start state and the task's draws, so a seed gives the same start and goal with or
-without randomization, and the same draws every time. The drawn values are in the reset ``info`` as
+generator after the start noise and before the task's draws (the start state's centre of mass
+depends on the drawn masses), so a seed gives the same start angles and speeds with or without
+randomization, and the same draws every time. The drawn values are in the reset ``info`` as
 ``randomized_<name>`` (physical units).
 
 | name | kind | default range | unit | source of the default range |
