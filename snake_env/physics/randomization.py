@@ -31,7 +31,7 @@ import numbers
 
 import numpy as np
 
-from .actuator_response import ActuatorResponse
+from .actuator_response import WHOLE_SUBSTEP_SLACK, ActuatorResponse
 from .stepping import InstantPhysics
 
 _FIRST = np.zeros(1, np.int64)  # the one row of a single robot's batch
@@ -69,7 +69,8 @@ def resolve(randomize, *, motor: bool, grip: bool, sim_dt: float, frame_skip: in
     if "control_latency" in ranges:  # whole substeps, at most one env step
         low, high = ranges["control_latency"]
         dt = sim_dt * frame_skip
-        if high > dt * (1 + 1e-9) or math.floor(high / sim_dt + 1e-9) < math.ceil(low / sim_dt - 1e-9):
+        first, last = latency_substep_range(low, high, sim_dt)
+        if high > dt * (1 + WHOLE_SUBSTEP_SLACK) or last < first:
             raise ValueError(f"randomize['control_latency'] must be a range [low, high] (s) within [0, dt = {dt:g}] "
                              f"that holds a whole number of sim_dt = {sim_dt:g} s substeps, got {[low, high]}")
     return ranges
@@ -94,14 +95,18 @@ def _resolve(randomize, *, motor: bool, grip: bool) -> dict[str, tuple[float, fl
     return {name: _pair(name, value) for name, value in randomize.items()}
 
 
+def latency_substep_range(low: float, high: float, sim_dt: float) -> tuple[int, int]:
+    """(first, last): the whole numbers of sim_dt substeps within a latency range [low, high] (s)."""
+    return (math.ceil(low / sim_dt - WHOLE_SUBSTEP_SLACK), math.floor(high / sim_dt + WHOLE_SUBSTEP_SLACK))
+
+
 def draw(config, ranges: dict, rng: np.random.Generator) -> tuple[object, dict[str, np.ndarray]]:
     """One episode's robot: (the PhysicsConfig with the drawn values, {name: drawn value (physical units)})."""
     n = config.n_links
-    changes, drawn, factors = {}, {}, {}
+    changes, factors = {}, {}
     for name, (low, high) in ranges.items():
         if name == "control_latency":  # whole substeps from ceil(low / sim_dt) to floor(high / sim_dt), <= one step
-            first = math.ceil(low / config.sim_dt - 1e-9)
-            last = math.floor(high / config.sim_dt + 1e-9)
+            first, last = latency_substep_range(low, high, config.sim_dt)
             changes[name] = int(rng.integers(first, last + 1)) * float(config.sim_dt)
             continue
         value = rng.uniform(low, high, n if name in PER_LINK else None)
