@@ -135,10 +135,7 @@ class ActuatorResponse(InstantPhysics):
         for j in range(self.frame_skip):
             held = self.substep_torques(command, j)
             phi_before = np.diff(q[:, :n], axis=1)
-            if forces is None:
-                step_inplace(self.substep_params, q, u, held, obs, aux)
-            else:
-                step_inplace(self.substep_params, q, u, held, obs, aux, forces, scale)
+            step_inplace(self.substep_params, q, u, held, obs, aux, forces, scale)
             energy += np.abs(held * (np.diff(q[:, :n], axis=1) - phi_before)).sum(axis=1)
             work += aux[:, AUX_WORK]
             np.maximum(refinements, aux[:, AUX_REFINEMENTS], out=refinements)
