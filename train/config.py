@@ -80,6 +80,12 @@ class ConfigError(ValueError):
     """A configuration problem; the message is one line fit for a CLI error."""
 
 
+def first_line(exc: BaseException) -> str:
+    """An exception's first message line (its type's name when it has no message), for a one-line error."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 def algo_class(algo: str):
     from stable_baselines3 import PPO, SAC
 

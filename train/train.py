@@ -100,8 +100,7 @@ def build_model(config: dict, venv, verbose: int):
         return algo_cls(cfg.policy_for(config, venv.observation_space), venv, seed=config["seed"], device="cpu", verbose=verbose,
                         policy_kwargs=cfg.torch_policy_kwargs(config), **cfg.algo_kwargs(config))
     except (TypeError, ValueError, AssertionError) as exc:
-        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise cfg.ConfigError(f"invalid {config['algo']} hyperparameters: {message}") from None
+        raise cfg.ConfigError(f"invalid {config['algo']} hyperparameters: {cfg.first_line(exc)}") from None
 
 
 def load_initial_weights(model, init_from) -> None:
@@ -112,8 +111,8 @@ def load_initial_weights(model, init_from) -> None:
     try:
         model.set_parameters(str(path), exact_match=True, device="cpu")
     except (RuntimeError, KeyError, ValueError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise cfg.ConfigError(f"init_from {path}: its weights do not fit this run's policy ({first})") from None
+        raise cfg.ConfigError(f"init_from {path}: its weights do not fit this run's policy "
+                              f"({cfg.first_line(exc)})") from None
     print(f"initialized the policy from {path}")
 
 
