@@ -19,7 +19,8 @@ from gymnasium import spaces
 from numba import njit
 
 from snake_env.tasks import Task, task_class
-from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, StepContext, common_reset_info, common_step_info
+from snake_env.tasks.base import (ACTUATOR_POWER_ROW, COMMON_STEP_INFO_KEYS, COMMON_VALUE_KEYS, StepContext,
+                                  common_reset_info, common_step_values)
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
@@ -117,6 +118,11 @@ def _scale_and_save(actions, max_torque, torques, q, q_prev):
             q_prev[b, i] = q[b, i]
 
 
+def first_row(values: dict[str, np.ndarray]) -> dict:
+    """Row 0 of batched values: Python floats and bools for (B,) arrays, (n,) arrays for (B, n) ones."""
+    return {key: value.item() if value.ndim == 1 else value[0] for key, value in values.items()}
+
+
 class SnakeBatch:
     """State (B rows) of snakes doing one task, stepped by one compiled call."""
 
@@ -147,6 +153,10 @@ class SnakeBatch:
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
         self.task_state = task.init_state(B)
+        # the last step's common info, filled in place by one compiled pass: float values (rows
+        # COMMON_VALUE_KEYS) and failed rows; step() hands out copies, step_first() Python scalars
+        self.common_values = np.empty((len(COMMON_VALUE_KEYS), B))
+        self.failed = np.zeros(B, np.bool_)
         self._context = StepContext(action=self.torques, torques=self.torques, q_prev=self.q_prev, q=self.q,
                                     u=self.u, aux=self.aux, dt=config.dt)
 
@@ -156,6 +166,13 @@ class SnakeBatch:
         if isinstance(obs, dict):
             return {key: value.copy() for key, value in obs.items()}
         return obs.copy()
+
+    def observation_first(self):
+        """:meth:`observation` of row 0 (the single env's): an array, or a dict of arrays for goal tasks."""
+        obs = self.task.observe(self.config, self.physics_obs, self.q, self.aux, self.task_state)
+        if isinstance(obs, dict):
+            return {key: value[0].copy() for key, value in obs.items()}
+        return obs[0].copy()
 
     def reset(self, mask: np.ndarray, rng: np.random.Generator) -> None:
         """New episodes for the rows of ``mask``: start noise first, then (randomized) the robots, then the
@@ -178,8 +195,28 @@ class SnakeBatch:
         return info
 
     def step(self, actions, checked: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,)).
+        """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,) or (B, n)).
         ``checked``: the actions are already a float64 copy clipped by :func:`check_actions`."""
+        rewards, terminated, extras = self._advance(actions, checked)
+        info = dict(zip(COMMON_VALUE_KEYS, self.common_values.copy()))
+        info["sim_failure"] = self.failed.copy()
+        info.update(extras)
+        return rewards, terminated, info
+
+    def step_first(self, action: np.ndarray) -> tuple[float, bool, dict]:
+        """:meth:`step` of a batch of one with an action checked by :func:`check_actions`: (reward,
+        terminated, info) of row 0 as the single env gives them, Python floats and bools and (n,) arrays.
+        The same values as :meth:`step`'s row 0, without its arrays of one element (the single env steps
+        in tens of microseconds, where each of those costs a few hundred nanoseconds)."""
+        rewards, terminated, extras = self._advance(action[None], True)
+        info = dict(zip(COMMON_VALUE_KEYS, self.common_values[:, 0].tolist()))
+        info["sim_failure"] = bool(self.failed[0])
+        info.update(first_row(extras))
+        return rewards.item(), bool(terminated[0]), info
+
+    def _advance(self, actions, checked: bool) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Step the physics of every row and evaluate its task: (rewards, terminated, the info beyond the
+        common values: wheels, task, costs); the common values are left in ``common_values`` and ``failed``."""
         a = actions if checked else check_actions(actions, self.torques.shape)
         _scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev)
         # the wheel forces at the step's end come from the step's own sweep
@@ -188,35 +225,37 @@ class SnakeBatch:
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
-        info, failures = common_step_info(ctx)
+        failures = common_step_values(ctx, self.common_values, self.failed)
+        actuator_power = self.common_values[ACTUATOR_POWER_ROW]
         if power is not None:  # from the torques a lagged, delayed command held substep by substep
-            info["actuator_power"] = np.where(np.isnan(power), info["actuator_power"], power)
+            np.copyto(actuator_power, power, where=~np.isnan(power))
+        extras = {}
         if self.report_grip:
-            info["wheel_lateral_force"] = self.wheel_force.copy()
-            info["wheel_slip"] = np.abs(info["wheel_lateral_force"]) > self.grip
-            info["traction_scale"] = self.traction_scale.copy()
-        info.update(task_info)
+            extras["wheel_lateral_force"] = self.wheel_force.copy()
+            extras["wheel_slip"] = np.abs(self.wheel_force) > self.grip
+            extras["traction_scale"] = self.traction_scale.copy()
+        extras.update(task_info)
         if self.task.energy_cost_weight:
             # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default
-            info[ENERGY_KEY] = -self.task.energy_cost_weight * info["actuator_power"]
-            rewards = rewards + info[ENERGY_KEY]
+            extras[ENERGY_KEY] = -self.task.energy_cost_weight * actuator_power
+            rewards = rewards + extras[ENERGY_KEY]
         if self.task.slip_cost_weight:
             # every task: a cost on the wheels' lateral force beyond their grip, in link weights (the motion's
             # own excess: the traction limit already keeps the motors' torques from adding any)
-            excess = np.maximum(np.abs(info["wheel_lateral_force"]) - self.grip, 0.0) / self.wheel_load
-            info[SLIP_KEY] = -self.task.slip_cost_weight * excess.sum(axis=1)
-            rewards = rewards + info[SLIP_KEY]
+            excess = np.maximum(np.abs(self.wheel_force) - self.grip, 0.0) / self.wheel_load
+            extras[SLIP_KEY] = -self.task.slip_cost_weight * excess.sum(axis=1)
+            rewards = rewards + extras[SLIP_KEY]
         if failures:
-            failed = info["sim_failure"]
+            failed = self.failed
             # A failed step was undone (the pre-step state is kept): it is not an outcome of
             # the action, so every task's reward and reward terms are exactly 0 and it never
             # terminates (the env truncates instead).
             rewards = np.where(failed, 0.0, rewards)
             terminated = terminated & ~failed
-            for key in info:
+            for key in extras:
                 if key.startswith("reward_"):
-                    info[key] = np.where(failed, 0.0, info[key])
-        return rewards, terminated, info
+                    extras[key] = np.where(failed, 0.0, extras[key])
+        return rewards, terminated, extras
 
     def wheel_lateral_forces(self) -> np.ndarray:
         """The wheels' lateral forces (B, n) (N) of the current states under the torques held last."""

@@ -21,7 +21,7 @@ import numpy as np
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, RESET_INFO_KEYS
 from snake_env.tasks.forward import ForwardTask
 
-from .core import TaskEnvBase, check_actions
+from .core import TaskEnvBase, check_actions, first_row
 from snake_env.physics import AUX_X, AUX_Y
 
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
@@ -75,7 +75,7 @@ class SnakeEnv(TaskEnvBase, gym.Env):
         self._batch.set_state(np.asarray(q, np.float64)[None], np.asarray(u, np.float64)[None])
         self._restart_trail()
         self._has_reset = True
-        return self._first(self._batch.observation())
+        return self._batch.observation_first()
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -85,37 +85,24 @@ class SnakeEnv(TaskEnvBase, gym.Env):
         self._has_reset = True
         if self.render_mode == "human":
             self.render()
-        return self._first(self._batch.observation()), self._first_info(self._batch.reset_info())
+        return self._batch.observation_first(), first_row(self._batch.reset_info())
 
     def step(self, action):
         if not self._has_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         # checked here (not only in the batch) so that an error names the single env's shape
         action = check_actions(action, self.action_space.shape)
-        rewards, terminated, info = self._batch.step(action[None], checked=True)
-        info = self._first_info(info)
+        reward, terminated, info = self._batch.step_first(action)
         if info["sim_failure"]:
             warnings.warn(f"snake_env: simulation failure ({self._batch.failure_reasons(np.zeros(1, int))[0]}); the "
                           "step was undone, reward 0 and the episode truncated (info['sim_failure'] = True)",
                           RuntimeWarning, stacklevel=2)
-        aux = self._batch.aux[0]
-        self._trail.append((aux[AUX_X], aux[AUX_Y]))
-        if self.render_mode == "human":
-            self.render()
-        return (self._first(self._batch.observation()), float(rewards[0]), bool(terminated[0]),
-                info["sim_failure"], info)
-
-    @staticmethod
-    def _first(obs):
-        """Row 0 of a batched observation (an array, or a dict of arrays for goal tasks)."""
-        if isinstance(obs, dict):
-            return {key: value[0] for key, value in obs.items()}
-        return obs[0]
-
-    @staticmethod
-    def _first_info(info):
-        """Row 0 of a batched info: Python floats and bools, arrays (e.g. per wheel) as arrays."""
-        return {key: value.item() if value.ndim == 1 else value[0] for key, value in info.items()}
+        if self.render_mode is not None:  # the trail is drawn, not observed
+            aux = self._batch.aux[0]
+            self._trail.append((aux[AUX_X], aux[AUX_Y]))
+            if self.render_mode == "human":
+                self.render()
+        return self._batch.observation_first(), reward, terminated, info["sim_failure"], info
 
     def _restart_trail(self):
         aux = self._batch.aux[0]

@@ -122,17 +122,19 @@ def _common_info(aux, torques, q_prev, q, dt, out, failed):
     return failures
 
 
-def common_step_info(ctx: StepContext) -> tuple[dict[str, np.ndarray], int]:
-    """Info of every task (arrays over the rows). ``actuator_power`` = sum_k |T_k dphi_k| / dt (W):
-    the torques are held over the step, so T_k dphi_k is exactly the work of T_k phidot_k in
-    the step; it equals the integral of |T_k phidot_k| when phidot_k keeps its sign in the step
-    (0.04 s, short against the gaits' periods). Also returns the number of failed rows."""
-    out = np.empty((len(COMMON_STEP_INFO_KEYS) - 1, ctx.q.shape[0]))
-    failed = np.empty(ctx.q.shape[0], np.bool_)
-    failures = _common_info(ctx.aux, ctx.torques, ctx.q_prev, ctx.q, ctx.dt, out, failed)
-    info = dict(zip(COMMON_STEP_INFO_KEYS, out))
-    info["sim_failure"] = failed
-    return info, failures
+# the float values of the common step info (every key but sim_failure), rows of common_step_values' matrix
+COMMON_VALUE_KEYS = COMMON_STEP_INFO_KEYS[:-1]
+ACTUATOR_POWER_ROW = _ACTUATOR
+
+
+def common_step_values(ctx: StepContext, out: np.ndarray, failed: np.ndarray) -> int:
+    """Fill ``out`` (len(COMMON_VALUE_KEYS), B) with the info of every task and ``failed`` (B,) with the
+    failed rows; return the number of failed rows. Caller-owned buffers: the vector env hands out copies,
+    the single env Python scalars of row 0 (one ``tolist``). ``actuator_power`` = sum_k |T_k dphi_k| / dt
+    (W): the torques are held over the step, so T_k dphi_k is exactly the work of T_k phidot_k in the
+    step; it equals the integral of |T_k phidot_k| when phidot_k keeps its sign in the step (0.04 s,
+    short against the gaits' periods)."""
+    return _common_info(ctx.aux, ctx.torques, ctx.q_prev, ctx.q, ctx.dt, out, failed)
 
 
 def common_reset_info(aux: np.ndarray) -> dict[str, np.ndarray]:
