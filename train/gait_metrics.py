@@ -17,7 +17,8 @@ From the joint state sampled once per env step (dt s) over an episode of L steps
 - ``median_grip_demand``, ``peak_grip_demand``: the wheels' lateral force over their load,
   |lambda_k| / (m_k g) (``info["wheel_lateral_force"]``, eq. 27's multipliers), over all
   wheel-steps; ``outside_friction_cone_share``: the share of wheel-steps with |lambda_k| above
-  mu m_k g, mu the env's ``wheel_friction`` or, for unlimited grip, :data:`REFERENCE_FRICTION`.
+  mu m_k g (``snake_env.physics.config.sliding``: a wheel the traction limit holds at mu m_k g, up to
+  rounding, is inside), mu the env's ``wheel_friction`` or, for unlimited grip, :data:`REFERENCE_FRICTION`.
   A rubber wheel holds about its load (mu 0.8-1); the no-slip model is exact only inside the cone.
 """
 
@@ -27,7 +28,7 @@ import math
 
 import numpy as np
 
-from snake_env.physics.config import DEFAULT_WHEEL_FRICTION
+from snake_env.physics.config import DEFAULT_WHEEL_FRICTION, sliding
 
 GAIT_METRICS = ("dominant_joint_frequency", "peak_joint_rate", "torque_sign_flip_share", "mean_power", "peak_power",
                 "median_grip_demand", "peak_grip_demand", "outside_friction_cone_share")
@@ -102,7 +103,7 @@ class GaitRecorder:
             return {key: math.nan for key in GAIT_METRICS[-3:]}
         demand = np.concatenate(self.grip)  # |lambda| / (m g) of every wheel-step
         return {"median_grip_demand": float(np.median(demand)), "peak_grip_demand": float(demand.max()),
-                "outside_friction_cone_share": float(np.mean(demand > self.friction))}
+                "outside_friction_cone_share": float(np.mean(sliding(demand, self.friction)))}
 
 
 def summarize_gait(results: list[dict]) -> dict:

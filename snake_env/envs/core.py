@@ -24,6 +24,7 @@ from snake_env.tasks.base import (ACTUATOR_POWER_ROW, COMMON_STEP_INFO_KEYS, COM
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
+from snake_env.physics.config import sliding
 from snake_env.physics.batch import batch_physics
 from snake_env.physics.settings import number, split_kwargs
 
@@ -232,7 +233,7 @@ class SnakeBatch:
         extras = {}
         if self.report_grip:
             extras["wheel_lateral_force"] = self.wheel_force.copy()
-            extras["wheel_slip"] = np.abs(self.wheel_force) > self.grip
+            extras["wheel_slip"] = sliding(self.wheel_force, self.grip)
             extras["traction_scale"] = self.traction_scale.copy()
         extras.update(task_info)
         if self.task.energy_cost_weight:
@@ -242,6 +243,7 @@ class SnakeBatch:
         if self.task.slip_cost_weight:
             # every task: a cost on the wheels' lateral force beyond their grip, in link weights (the motion's
             # own excess: the traction limit already keeps the motors' torques from adding any)
+            # (a wheel the traction limit holds at its grip is above it by rounding: < 1e-15 link weights)
             excess = np.maximum(np.abs(self.wheel_force) - self.grip, 0.0) / self.wheel_load
             extras[SLIP_KEY] = -self.task.slip_cost_weight * excess.sum(axis=1)
             rewards = rewards + extras[SLIP_KEY]

@@ -72,6 +72,11 @@ DEFAULT_ACTUATOR = "servo"  # physics.actuators: 1 N m stall torque, 3.14 rad/s 
 # Physics for Scientists and Engineers, 5th ed., Table 5.2; the Engineering ToolBox gives 0.6-0.85. The
 # kinetic value, because beyond the cone the wheel slides.
 DEFAULT_WHEEL_FRICTION = 0.8
+# A wheel slides when its lateral force exceeds its grip by more than this share of the grip. The traction
+# limit holds the wheels it saturates at mu m_k g up to rounding (at most 4.4e-16 of the grip above it,
+# measured under bang-bang torques on Snake5 and Snake12), while the motion's own excess starts at ~3e-3
+# of the grip (the smallest seen there): 1e-9 separates the two and counts no held wheel as sliding.
+SLIP_TOLERANCE = 1e-9
 # The physics of every id's previous version (forward and path v2, command and reach v1): ideal torque
 # sources and wheels that grip without limit (the paper's no-slip constraint at any force).
 PREVIOUS_VERSION_PHYSICS = {"actuator": "ideal", "wheel_friction": None}
@@ -284,3 +289,9 @@ def max_stable_sim_dt(params: PhysicsParams, max_torque: float) -> tuple[float, 
     rates = stiffest_rates(params, max_torque)
     name = max(rates, key=rates.get)
     return (RK4_STABLE_RATE_STEP / rates[name] if rates[name] > 0.0 else math.inf), name
+
+
+def sliding(lateral_force, grip) -> np.ndarray:
+    """Whether each wheel slides: |lateral force| above its grip by more than :data:`SLIP_TOLERANCE` of it
+    (a wheel the traction limit holds at its grip, up to rounding, grips). Any matching shapes (N)."""
+    return np.abs(lateral_force) > grip * (1.0 + SLIP_TOLERANCE)

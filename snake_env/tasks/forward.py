@@ -138,8 +138,8 @@ class ForwardTask(Task):
     sideways force each wheel exerts on its link, eq. 27's multiplier, from the
     step's final state and held torques under the traction limit;
     `env.unwrapped.wheel_lateral_forces()` without grip), `wheel_slip` (n,) (bool:
-    |force| > `wheel_friction` m_k g, which only the motion itself can cause: such
-    a wheel would slide, which the no-slip model does not follow) and
+    |force| > `wheel_friction` m_k g beyond rounding, which only the motion itself can
+    cause: such a wheel would slide, which the no-slip model does not follow) and
     `traction_scale` (the share of the motors' torques the wheels let through,
     1 = all); here also `reward_forward`, `reward_ctrl`. Reset: `x_position`, `y_position`,
     `distance_from_origin`, `kinetic_energy`.
@@ -192,7 +192,10 @@ class ForwardTask(Task):
       limit, instead of ideal torque sources and wheels that grip at any force
       (docs/env.md). `snake_env/Snake{n}-v3` is still registered with
       `actuator="ideal", wheel_friction=None`, its physics bit for bit.
-      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`.
+      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`. Corrected
+      3 Dec 2026 without a new version (observations, rewards and terminations
+      unchanged): `wheel_slip` no longer flags a wheel the traction limit holds at
+      its grip, which rounding put up to 4.4e-16 of the grip above it.
     * v2: a step that meets every accuracy check but ends folded (|phi_k| reaches
       FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
       times (the finer substeps folded too). Only settings that can fold differ

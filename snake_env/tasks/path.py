@@ -87,7 +87,10 @@ class PathTask(Task):
       limit, instead of ideal torque sources and wheels that grip at any force
       (docs/env.md). `snake_env/SnakePath{n}-v2` is still registered with
       `actuator="ideal", wheel_friction=None`, its physics bit for bit.
-      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`.
+      `info` gains `wheel_lateral_force`, `wheel_slip` and `traction_scale`. Corrected
+      3 Dec 2026 without a new version (observations, rewards and terminations
+      unchanged): `wheel_slip` no longer flags a wheel the traction limit holds at
+      its grip, which rounding put up to 4.4e-16 of the grip above it.
     * v2: a step that meets every accuracy check but ends folded (|phi_k| reaches
       FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
       times (the finer substeps folded too). Only settings that can fold differ

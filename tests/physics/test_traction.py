@@ -15,6 +15,7 @@ import pytest
 
 from snake_env.dynamics import compiled
 from snake_env.physics import GRAVITY, PhysicsConfig
+from snake_env.physics.config import SLIP_TOLERANCE
 
 
 def _models(n, friction, **kwargs):
@@ -145,6 +146,28 @@ def test_slip_info_flags_only_the_motions_excess():
         assert 0.0 <= info["traction_scale"] <= 1.0
         scales.append(info["traction_scale"])
     assert min(scales) < 0.5
+
+
+def test_a_wheel_the_traction_limit_holds_at_its_grip_is_not_flagged():
+    """The limit holds the wheels it saturates at mu m_k g up to rounding, a few ulps on either side;
+    ``wheel_slip`` flags only a wheel above its grip by more than SLIP_TOLERANCE of it, which only the
+    motion's own excess reaches."""
+    env = gym.make("snake_env/Snake5-v3")
+    env.reset(seed=0)
+    grip = env.unwrapped.config.grip()
+    rng = np.random.default_rng(0)
+    rounded_above = excess = 0
+    for _ in range(1000):
+        info = env.step(rng.choice([-1.0, 1.0], 4))[4]
+        above = np.abs(info["wheel_lateral_force"]) / grip - 1.0
+        flagged = info["wheel_slip"]
+        assert not flagged[above <= 1e-12].any()
+        assert np.all(above[flagged] > SLIP_TOLERANCE)
+        assert flagged[above > 1e-6].all()
+        rounded_above += np.count_nonzero((above > 0.0) & (above <= 1e-12))
+        excess += np.count_nonzero(above > 1e-6)
+    assert rounded_above > 0  # held wheels that |lambda| > mu m g alone would flag
+    assert excess > 0  # and the motion's own excess, which is flagged
 
 
 def test_slip_cost_is_the_wheels_excess_over_their_grip_in_link_weights(rng):

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import snake_env  # noqa: F401
+from snake_env.physics.config import sliding
 from snake_env.controllers import SerpenoidController, load_params
 from snake_env.envs.hud import episode_lines
 from snake_env.train.evaluate import main as eval_main
@@ -30,6 +31,19 @@ def test_dominant_frequency_of_known_signals():
     assert dominant_frequency(chatter, DT) == pytest.approx(1 / (2 * DT))
     assert dominant_frequency(np.ones((50, 3)), DT) == 0.0  # no bending, no gait
     assert math.isnan(dominant_frequency(np.zeros((3, 2)), DT))
+
+
+def test_the_cone_share_counts_a_wheel_held_at_its_grip_as_inside():
+    """A wheel the traction limit holds at mu m g sits up to a few ulps above it; only a force beyond
+    SLIP_TOLERANCE of the grip counts as outside the cone."""
+    load = np.array([9.81, 4.905])
+    recorder = GaitRecorder(DT, wheel_load=load, wheel_friction=0.8)
+    state = (np.zeros(1), np.zeros(1), np.zeros(1))
+    held = 0.8 * load * (1.0 + 4.4e-16)  # what the traction limit's rounding gives (measured, test_traction.py)
+    assert np.all(held / load > 0.8)  # the rule |lambda| > mu m g counted these as sliding
+    for force in (held, 0.5 * held, 0.8 * load * (1.0 + 1e-6)):  # the last: a motion's own excess
+        recorder.add(state, 0.0, force)
+    assert recorder.metrics()["outside_friction_cone_share"] == pytest.approx(2 / 6)
 
 
 def test_sign_flip_share_is_the_worst_joint():
@@ -85,5 +99,6 @@ def test_serpenoid_gait_metrics_match_its_parameters_and_the_state(tmp_path):
     # grip: |lambda| / (m g) over all wheel-steps; on v2's unlimited grip the cone is the default wheels'
     # (mu = REFERENCE_FRICTION = 0.8), which the searched v2 gait leaves often (79 % measured)
     assert episode["median_grip_demand"] == pytest.approx(np.median(demand), rel=1e-12)
-    assert episode["outside_friction_cone_share"] == pytest.approx(np.mean(np.asarray(demand) > REFERENCE_FRICTION))
+    assert episode["outside_friction_cone_share"] == pytest.approx(np.mean(sliding(np.asarray(demand),
+                                                                            REFERENCE_FRICTION)))
     assert 0.3 < episode["outside_friction_cone_share"] < 1.0
