@@ -184,8 +184,7 @@ def read_yaml(path) -> dict:
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ConfigError(f"config file {path} is not valid YAML: {first}") from None
+        raise ConfigError(f"config file {path} is not valid YAML: {first_line(exc)}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -437,7 +436,7 @@ def make_callbacks(config: dict) -> list:
         try:
             callbacks.append(cls(**kwargs))
         except (TypeError, ValueError) as exc:
-            raise ConfigError(f"callback {name}: {str(exc).strip().splitlines()[0]}") from None
+            raise ConfigError(f"callback {name}: {first_line(exc)}") from None
     return callbacks
 
 
@@ -534,7 +533,7 @@ def torch_policy_kwargs(config: dict) -> dict:
         try:
             kwargs["layout"] = layout_for_id(config["env_id"], dict(config.get("env_kwargs") or {}))
         except ValueError as exc:
-            raise ConfigError(f"policy {JOINT_POLICY} on {config['env_id']}: {str(exc).splitlines()[0]}") from None
+            raise ConfigError(f"policy {JOINT_POLICY} on {config['env_id']}: {first_line(exc)}") from None
     extractor = kwargs.get("features_extractor_class")
     if isinstance(extractor, str):
         from snake_env.train.extractors import EXTRACTORS

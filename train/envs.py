@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecMonitor, VecNormalize
 
-from snake_env.train.config import ConfigError, normalize_options
+from snake_env.train.config import ConfigError, first_line, normalize_options
 
 
 def make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
@@ -16,8 +16,8 @@ def make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:
     except (ValueError, TypeError, gym.error.Error) as exc:
         if isinstance(exc, ConfigError):
             raise
-        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ConfigError(f"cannot make env {config['env_id']!r} with env_kwargs {config['env_kwargs']}: {message}") from None
+        raise ConfigError(f"cannot make env {config['env_id']!r} with env_kwargs {config['env_kwargs']}: "
+                          f"{first_line(exc)}") from None
 
 
 def _make_vec_env(config: dict, n_envs: int, seed: int) -> VecEnv:

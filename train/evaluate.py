@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from snake_env.train.config import first_line
+
 EXIT_ERROR = 2
 VIDEO_SUFFIXES = (".gif", ".mp4")
 
@@ -80,11 +82,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
 def make_env(env_id: str, env_kwargs: dict, render: bool, env_wrapper=None):
     import gymnasium as gym
 
@@ -94,7 +91,7 @@ def make_env(env_id: str, env_kwargs: dict, render: bool, env_wrapper=None):
     try:
         return wrap_env(gym.make(env_id, render_mode="rgb_array" if render else None, **env_kwargs), env_wrapper)
     except (ValueError, TypeError, gym.error.Error) as exc:
-        raise EvalError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {_first_line(exc)}") from None
+        raise EvalError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs}: {first_line(exc)}") from None
 
 
 def wheel_forces(base, info: dict):
@@ -213,7 +210,7 @@ class VideoWriter:
         except (ImportError, ValueError, RuntimeError) as exc:
             self._atomic.__exit__(type(exc), exc, None)
             raise EvalError(f"writing {self.path.suffix} needs the imageio-ffmpeg package "
-                            f"(pip install imageio-ffmpeg), or use a .gif path: {_first_line(exc)}") from None
+                            f"(pip install imageio-ffmpeg), or use a .gif path: {first_line(exc)}") from None
         return self
 
     def append(self, frame: np.ndarray) -> None:
@@ -394,7 +391,7 @@ def baseline_actor(args):
     try:
         task, config = env_config(args.env_id, env_kwargs)
     except ValueError as exc:
-        raise EvalError(_first_line(exc)) from None
+        raise EvalError(first_line(exc)) from None
     own = type(task).baseline_name
     if args.baseline != own:
         shipped = shipped_baselines()
@@ -406,7 +403,7 @@ def baseline_actor(args):
     try:
         controller = task.make_baseline(config, gaits=args.serpenoid_config)
     except ValueError as exc:
-        raise EvalError(_first_line(exc)) from None
+        raise EvalError(first_line(exc)) from None
     params = controller.params
     title = f"{args.baseline} baseline ({type(controller).__name__}, gait {params}) on {args.env_id}"
     return (args.env_id, env_kwargs, controller.act, controller.reset, title,

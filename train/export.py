@@ -45,6 +45,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from snake_env.train.config import first_line
+
 EXIT_ERROR = 2
 OPSET = 17
 INPUT_NAME = "obs"
@@ -53,11 +55,6 @@ OUTPUT_NAME = "action"
 
 class ExportError(ValueError):
     """A one-line CLI error."""
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -114,7 +111,7 @@ def load_for_export(target, env_id=None):
         env = wrap_env(gym.make(env_id, **env_kwargs), env_wrapper)
     except (ValueError, TypeError, gym.error.Error) as exc:
         raise ExportError(f"cannot make env {env_id!r} with env_kwargs {env_kwargs} and env_wrapper {env_wrapper}: "
-                          f"{_first_line(exc)}") from None
+                          f"{first_line(exc)}") from None
     try:
         obs_space = env.observation_space
         parts = obs_space.spaces.values() if isinstance(obs_space, gym.spaces.Dict) else [obs_space]
@@ -251,11 +248,11 @@ def export_onnx(target, out, env_id=None, opset: int = OPSET) -> dict:
     try:
         onnx.checker.check_model(model, full_check=True)
     except onnx.checker.ValidationError as exc:
-        raise ExportError(f"the exported graph does not validate: {_first_line(exc)}") from None
+        raise ExportError(f"the exported graph does not validate: {first_line(exc)}") from None
     try:
         atomic_write_bytes(out, model.SerializeToString())
     except OSError as exc:
-        raise ExportError(f"--out: cannot write {out}: {_first_line(exc)}") from None
+        raise ExportError(f"--out: cannot write {out}: {first_line(exc)}") from None
     return metadata
 
 

@@ -173,8 +173,8 @@ def check_storage(url: str) -> None:
 
 
 def _first_line(exc: BaseException) -> str:
-    text = str(getattr(exc, "orig", None) or exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
+    """:func:`snake_env.train.config.first_line` of a database error's driver exception (``orig``) if any."""
+    return cfg.first_line(getattr(exc, "orig", None) or exc)
 
 
 def check_args(args) -> tuple[dict, Path, str]:
