@@ -34,7 +34,7 @@ def profile(env_id: str, calls: int) -> dict[str, float]:
     import gymnasium as gym
 
     import snake_env  # noqa: F401  (registers the ids)
-    from snake_env.envs.core import check_actions
+    from snake_env.envs.core import action_array
     from snake_env.physics import stepping
     from snake_env.tasks.base import common_step_values
 
@@ -43,7 +43,7 @@ def profile(env_id: str, calls: int) -> dict[str, float]:
     single = env.unwrapped
     batch = single._batch
     action = np.zeros(env.action_space.shape, env.action_space.dtype)
-    checked = check_actions(action, action.shape)
+    checked = action_array(action, action.shape)
     q0, u0 = batch.q.copy(), batch.u.copy()
 
     def restore():
@@ -65,7 +65,8 @@ def profile(env_id: str, calls: int) -> dict[str, float]:
     rows = {name: best_time(fn, calls) - restoring for name, fn in stateful.items()}
     rows["the task's reward"] = best_time(lambda: batch.task.evaluate(batch.config, batch._context, batch.task_state),
                                           calls)
-    rows["check_actions"] = best_time(lambda: check_actions(action, action.shape), calls)
+    rows["action_array (the action's float64 copy; the clip is the step's)"] = best_time(
+        lambda: action_array(action, action.shape), calls)
     rows["the common info values"] = best_time(
         lambda: common_step_values(batch._context, batch.common_values, batch.failed), calls)
     return rows

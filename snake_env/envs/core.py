@@ -24,7 +24,7 @@ from snake_env.tasks.base import (ACTUATOR_POWER_ROW, COMMON_STEP_INFO_KEYS, COM
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
-from snake_env.physics.config import sliding
+from snake_env.physics.config import sliding_into
 from snake_env.physics.batch import batch_physics
 from snake_env.physics.settings import number, split_kwargs
 
@@ -83,16 +83,26 @@ def physics_observation_space(n_links: int, include_position: bool) -> spaces.Bo
     return spaces.Box(low=low, high=high, dtype=np.float64)
 
 
-def check_actions(action, shape: tuple) -> np.ndarray:
-    """Actions as float64 clipped to [-1, 1]; wrong shape or NaN/inf -> ValueError."""
+NOT_FINITE_ACTION = "action must be finite (no NaN or inf); values outside [-1, 1] are clipped"
+
+
+def action_array(action, shape: tuple) -> np.ndarray:
+    """Actions as a float64 copy of ``shape`` (not yet clipped: :func:`check_actions`, or the step's
+    compiled clip); not real or a wrong shape -> ValueError."""
     try:
-        a = np.array(action, dtype=np.float64)  # a copy: clipped in place below
+        a = np.array(action, dtype=np.float64)  # a copy: clipped in place
     except (TypeError, ValueError):
         raise ValueError(f"action must be a real array of shape {shape} in [-1, 1], got {action!r}") from None
     if a.shape != shape:
         raise ValueError(f"action must have shape {shape} (one value in [-1, 1] per joint), got {a.shape}")
-    if not _clip_if_finite(a.reshape(-1)):
-        raise ValueError("action must be finite (no NaN or inf); values outside [-1, 1] are clipped")
+    return a
+
+
+def check_actions(action, shape: tuple) -> np.ndarray:
+    """Actions as float64 clipped to [-1, 1]; wrong shape or NaN/inf -> ValueError."""
+    a = action_array(action, shape)
+    if not _clip_if_finite(a if a.ndim == 1 else a.reshape(-1)):
+        raise ValueError(NOT_FINITE_ACTION)
     return a
 
 
@@ -110,18 +120,27 @@ def _clip_if_finite(a):
 
 
 @njit(cache=True, nogil=True)
-def _scale_and_save(actions, max_torque, torques, q, q_prev):
-    """torques = max_torque * actions (N m); q_prev = q (one compiled call instead of two ufuncs)."""
+def _clip_scale_and_save(actions, max_torque, torques, q, q_prev):
+    """False (nothing written) if an action is NaN or inf; else clip ``actions`` (B, n-1) to [-1, 1] in
+    place, torques = max_torque * actions (N m), q_prev = q: True. One compiled call where the single
+    env's step would otherwise pay for several (it takes ~15 us)."""
+    for b in range(actions.shape[0]):
+        for k in range(actions.shape[1]):
+            if not math.isfinite(actions[b, k]):
+                return False
     for b in range(q.shape[0]):
         for k in range(torques.shape[1]):
-            torques[b, k] = actions[b, k] * max_torque
+            value = min(max(actions[b, k], -1.0), 1.0)
+            actions[b, k] = value
+            torques[b, k] = value * max_torque
         for i in range(q.shape[1]):
             q_prev[b, i] = q[b, i]
+    return True
 
 
 def first_row(values: dict[str, np.ndarray]) -> dict:
     """Row 0 of batched values: Python floats and bools for (B,) arrays, (n,) arrays for (B, n) ones."""
-    return {key: value.item() if value.ndim == 1 else value[0] for key, value in values.items()}
+    return {key: (value.item() if value.ndim == 1 else value[0]) for key, value in values.items()}
 
 
 class SnakeBatch:
@@ -150,10 +169,17 @@ class SnakeBatch:
         # one compiled call, a motor response in time, or a robot per row (randomize): physics.batch
         self.physics = batch_physics(config, self.params, B)
         self.grip, self.wheel_load = self.physics.grip, self.physics.wheel_load
+        # the grips (N) of every row for the compiled slip test: a randomized batch's own (B, n) array, which
+        # its resets redraw in place, or one robot's (n,) copied to every row
+        self.row_grip = self.grip if self.grip.ndim == 2 else np.tile(self.grip, (B, 1))
+        self.slip = np.zeros((B, n), np.bool_)
+        self._grip_buffers = (self.wheel_force, self.traction_scale) if self.report_grip else (None, None)
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
         self.task_state = task.init_state(B)
+        # a task without an observe() of its own (forward) observes the physics observation as it is
+        self._observes_physics = type(task).observe is Task.observe
         # the last step's common info, filled in place by one compiled pass: float values (rows
         # COMMON_VALUE_KEYS) and failed rows; step() hands out copies, step_first() Python scalars
         self.common_values = np.empty((len(COMMON_VALUE_KEYS), B))
@@ -170,6 +196,8 @@ class SnakeBatch:
 
     def observation_first(self):
         """:meth:`observation` of row 0 (the single env's): an array, or a dict of arrays for goal tasks."""
+        if self._observes_physics:
+            return self.physics_obs[0].copy()
         obs = self.task.observe(self.config, self.physics_obs, self.q, self.aux, self.task_state)
         if isinstance(obs, dict):
             return {key: value[0].copy() for key, value in obs.items()}
@@ -197,32 +225,42 @@ class SnakeBatch:
 
     def step(self, actions, checked: bool = False) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Advance every row; return (rewards (B,), terminated (B,), info of arrays (B,) or (B, n)).
-        ``checked``: the actions are already a float64 copy clipped by :func:`check_actions`."""
+        ``checked``: the actions are already a float64 copy of the right shape (:func:`action_array`), which
+        the step clips in place."""
         rewards, terminated, extras = self._advance(actions, checked)
         info = dict(zip(COMMON_VALUE_KEYS, self.common_values.copy()))
         info["sim_failure"] = self.failed.copy()
+        if self.report_grip:
+            info["wheel_lateral_force"] = self.wheel_force.copy()
+            info["wheel_slip"] = self.slip.copy()
+            info["traction_scale"] = self.traction_scale.copy()
         info.update(extras)
         return rewards, terminated, info
 
     def step_first(self, action: np.ndarray) -> tuple[float, bool, dict]:
-        """:meth:`step` of a batch of one with an action checked by :func:`check_actions`: (reward,
+        """:meth:`step` of a batch of one with an action made by :func:`action_array`: (reward,
         terminated, info) of row 0 as the single env gives them, Python floats and bools and (n,) arrays.
         The same values as :meth:`step`'s row 0, without its arrays of one element (the single env steps
         in tens of microseconds, where each of those costs a few hundred nanoseconds)."""
         rewards, terminated, extras = self._advance(action[None], True)
         info = dict(zip(COMMON_VALUE_KEYS, self.common_values[:, 0].tolist()))
-        info["sim_failure"] = bool(self.failed[0])
+        info["sim_failure"] = self.failed.item()
+        if self.report_grip:
+            info["wheel_lateral_force"] = self.wheel_force[0].copy()
+            info["wheel_slip"] = self.slip[0].copy()
+            info["traction_scale"] = self.traction_scale.item()
         info.update(first_row(extras))
-        return rewards.item(), bool(terminated[0]), info
+        return rewards.item(), terminated.item(), info
 
     def _advance(self, actions, checked: bool) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """Step the physics of every row and evaluate its task: (rewards, terminated, the info beyond the
-        common values: wheels, task, costs); the common values are left in ``common_values`` and ``failed``."""
-        a = actions if checked else check_actions(actions, self.torques.shape)
-        _scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev)
+        """Step the physics of every row and evaluate its task: (rewards, terminated, the info of the task
+        and the costs); the common values are left in ``common_values`` and ``failed``, the wheels' (with
+        grip) in ``wheel_force``, ``slip`` and ``traction_scale``."""
+        a = actions if checked else action_array(actions, self.torques.shape)
+        if not _clip_scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev):
+            raise ValueError(NOT_FINITE_ACTION)
         # the wheel forces at the step's end come from the step's own sweep
-        grip = (self.wheel_force, self.traction_scale) if self.report_grip else (None, None)
-        power = self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *grip)
+        power = self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *self._grip_buffers)
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
@@ -230,12 +268,9 @@ class SnakeBatch:
         actuator_power = self.common_values[ACTUATOR_POWER_ROW]
         if power is not None:  # from the torques a lagged, delayed command held substep by substep
             np.copyto(actuator_power, power, where=~np.isnan(power))
-        extras = {}
         if self.report_grip:
-            extras["wheel_lateral_force"] = self.wheel_force.copy()
-            extras["wheel_slip"] = sliding(self.wheel_force, self.grip)
-            extras["traction_scale"] = self.traction_scale.copy()
-        extras.update(task_info)
+            sliding_into(self.wheel_force, self.row_grip, self.slip)
+        extras = task_info
         if self.task.energy_cost_weight:
             # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default
             extras[ENERGY_KEY] = -self.task.energy_cost_weight * actuator_power

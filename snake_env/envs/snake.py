@@ -21,7 +21,7 @@ import numpy as np
 from snake_env.tasks.base import COMMON_STEP_INFO_KEYS, RESET_INFO_KEYS
 from snake_env.tasks.forward import ForwardTask
 
-from .core import TaskEnvBase, check_actions, first_row
+from .core import TaskEnvBase, action_array, first_row
 from snake_env.physics import AUX_X, AUX_Y
 
 TRAIL_LENGTH = 250  # env steps of CM trail kept for rendering (10 s)
@@ -91,7 +91,7 @@ class SnakeEnv(TaskEnvBase, gym.Env):
         if not self._has_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         # checked here (not only in the batch) so that an error names the single env's shape
-        action = check_actions(action, self.action_space.shape)
+        action = action_array(action, self.action_space.shape)
         reward, terminated, info = self._batch.step_first(action)
         if info["sim_failure"]:
             warnings.warn(f"snake_env: simulation failure ({self._batch.failure_reasons(np.zeros(1, int))[0]}); the "

@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from snake_env.dynamics import SnakeModel
 from snake_env.dynamics.validation import check_n_links
@@ -295,3 +296,14 @@ def sliding(lateral_force, grip) -> np.ndarray:
     """Whether each wheel slides: |lateral force| above its grip by more than :data:`SLIP_TOLERANCE` of it
     (a wheel the traction limit holds at its grip, up to rounding, grips). Any matching shapes (N)."""
     return np.abs(lateral_force) > grip * (1.0 + SLIP_TOLERANCE)
+
+
+@njit(cache=True, nogil=True)
+def sliding_into(lateral_force, grip, out) -> None:
+    """:func:`sliding` of (B, n) forces and grips (N), written into ``out`` (B, n) bool: the same comparison,
+    compiled (the env step's hot path; numpy's three ufuncs on the single env's (1, n) row cost ~2 us of its
+    ~20 us step)."""
+    limit = 1.0 + SLIP_TOLERANCE
+    for b in range(lateral_force.shape[0]):
+        for k in range(lateral_force.shape[1]):
+            out[b, k] = abs(lateral_force[b, k]) > grip[b, k] * limit

@@ -341,7 +341,8 @@ class Task:
 
     def evaluate(self, config: PhysicsConfig, ctx: StepContext, state: dict
                  ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """(reward (B,), terminated (B,), task info) of a step; may update ``state``."""
+        """(reward (B,), terminated (B,), task info) of a step; may update ``state``. The info is a new dict
+        of new arrays on every call: the caller adds its costs to it and hands it out."""
         raise NotImplementedError
 
     def overlay(self, config: PhysicsConfig, state: dict, row: int, q: np.ndarray) -> list | None:

@@ -230,10 +230,10 @@ class ForwardTask(Task):
         return SerpenoidController(params, num_envs=num_envs, **controller_geometry(config))
 
     def evaluate(self, config, ctx: StepContext, state):
-        terms = np.empty((3, ctx.aux.shape[0]))
+        rows = ctx.aux.shape[0]
+        terms = np.empty((3, rows))
         _forward_terms(ctx.aux, ctx.action, self.forward_reward_weight, self.ctrl_cost_weight, terms)
-        reward, reward_forward, reward_ctrl = terms
-        return reward, np.zeros(reward.shape[0], bool), {"reward_forward": reward_forward, "reward_ctrl": reward_ctrl}
+        return terms[0], np.zeros(rows, np.bool_), {"reward_forward": terms[1], "reward_ctrl": terms[2]}
 
 
 @njit(cache=True, nogil=True)

@@ -132,6 +132,12 @@ def test_actions_are_clipped_and_bad_actions_rejected():
     for bad in ([np.nan, 0, 0], [0, np.inf, 0], [0.0, 0.0], np.zeros((1, 3)), "abc", [[0, 0, 0]]):
         with pytest.raises(ValueError, match="action"):
             env.step(bad)
+    # a rejected action changes nothing: the next step is the one it would have been
+    env.set_state(*state)
+    for bad in ([1.0, 1.0, np.nan], [np.inf, 0.5, 0.5]):
+        with pytest.raises(ValueError, match="finite"):
+            env.step(bad)
+    np.testing.assert_array_equal(env.step(np.array([1.0, -1.0, 1.0]))[0], unit)
 
 
 def test_step_before_reset_is_an_error():

@@ -15,7 +15,7 @@ import pytest
 
 from snake_env.dynamics import compiled
 from snake_env.physics import GRAVITY, PhysicsConfig
-from snake_env.physics.config import SLIP_TOLERANCE
+from snake_env.physics.config import SLIP_TOLERANCE, sliding, sliding_into
 
 
 def _models(n, friction, **kwargs):
@@ -168,6 +168,39 @@ def test_a_wheel_the_traction_limit_holds_at_its_grip_is_not_flagged():
         excess += np.count_nonzero(above > 1e-6)
     assert rounded_above > 0  # held wheels that |lambda| > mu m g alone would flag
     assert excess > 0  # and the motion's own excess, which is flagged
+
+
+def test_the_compiled_slip_test_is_the_numpy_rule_bit_for_bit(rng):
+    """sliding_into (the env step's) gives sliding's verdict on every wheel, also one ulp either side of
+    the threshold, zero, negative forces and infinite grip."""
+    grip = rng.uniform(0.5, 20.0, (6, 7))
+    grip[5] = math.inf
+    threshold = grip * (1.0 + SLIP_TOLERANCE)
+    force = np.stack([threshold, np.nextafter(threshold, 0.0), np.nextafter(threshold, np.inf), grip,
+                      rng.normal(0.0, 10.0, grip.shape), np.zeros_like(grip)])
+    force *= rng.choice([-1.0, 1.0], force.shape)
+    out = np.ones(grip.shape, np.bool_)
+    for rows in force:
+        sliding_into(rows, grip, out)
+        np.testing.assert_array_equal(out, sliding(rows, grip))
+    assert sliding(force[2], grip)[:5].all() and not sliding(force[0], grip).any()
+
+
+def test_a_randomized_vector_env_flags_slip_against_each_rows_own_grip():
+    """Each row's wheel_slip is judged against the grip its own drawn mu gives (the batch keeps the drawn
+    grips, not one robot's)."""
+    vec = gym.make_vec("snake_env/Snake5-v3", num_envs=4, vectorization_mode="vector_entry_point",
+                       randomize={"wheel_friction": [0.3, 1.2]})
+    vec.reset(seed=3)
+    batch = vec.unwrapped._batch
+    rng = np.random.default_rng(1)
+    flagged = 0
+    for _ in range(300):
+        info = vec.step(rng.choice([-1.0, 1.0], (4, 4)))[4]
+        np.testing.assert_array_equal(info["wheel_slip"], sliding(info["wheel_lateral_force"], batch.physics.grip))
+        flagged += info["wheel_slip"].sum()
+    assert flagged > 0
+    assert np.ptp(batch.physics.grip[:, 0]) > 0.0  # the rows' grips differ
 
 
 def test_slip_cost_is_the_wheels_excess_over_their_grip_in_link_weights(rng):
