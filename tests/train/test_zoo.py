@@ -107,3 +107,48 @@ def test_init_from_has_no_zoo_hyperparameter_form():
     with pytest.raises(ValueError, match="init_from has no RL Zoo hyperparameter form"):
         zoo_entry({"policy": "MlpPolicy", "init_from": "runs/joint"}, "snake_env/Snake30-v3")
     assert "init_from" not in zoo_entry({"policy": "MlpPolicy", "init_from": None}, "snake_env/Snake30-v3")
+
+
+def test_joint_policy_in_the_zoos_form():
+    """policy: JointPolicy becomes the class for the algorithm with this env's observation layout, as
+    snake-train builds it; n_links_set and observation normalization are one-line errors."""
+    from snake_env.train.joint_features import layout_for_id
+    from snake_env.train.joint_policy import policy_class
+    from snake_env.train.zoo import zoo_entry
+
+    entry = {"policy": "JointPolicy", "policy_kwargs": "dict(hidden=16, log_std_init=-1.0)",
+             "normalize": "dict(norm_obs=False, norm_reward=True)"}
+    for algo in ("ppo", "sac"):
+        zoo = zoo_entry(dict(entry, policy_kwargs="dict(hidden=16)"), ENV, algo)
+        cls = policy_class(algo)
+        assert zoo["policy"] == f"{cls.__module__}.{cls.__qualname__}"
+        assert zoo["policy_kwargs"] == {"hidden": 16, "layout": layout_for_id(ENV, {})}
+    assert zoo_entry(entry, ENV, "ppo")["policy_kwargs"]["log_std_init"] == -1.0
+    with pytest.raises(ValueError, match="n_links_set .* has no RL Zoo form"):
+        zoo_entry(dict(entry, n_links_set=[5, 8]), ENV, "ppo")
+    with pytest.raises(ValueError, match="reads raw observations"):
+        zoo_entry(dict(entry, normalize=True), ENV, "ppo")
+    with pytest.raises(ValueError, match="needs the algorithm"):
+        zoo_entry(entry, ENV)
+
+
+def test_rl_zoo_trains_a_joint_policy(tmp_path):
+    """rl_zoo3.train runs a JointPolicy entry given in the zoo's form by a Python config module."""
+    pytest.importorskip("rl_zoo3")
+    (tmp_path / "joint_conf.py").write_text(
+        "from snake_env.train.zoo import zoo_entry\n"
+        f"hyperparams = {{{ENV!r}: zoo_entry({{'policy': 'JointPolicy', 'n_timesteps': 128, 'n_envs': 2, "
+        "'n_steps': 64, 'batch_size': 64, 'n_epochs': 1, 'policy_kwargs': 'dict(hidden=8)', "
+        f"'normalize': 'dict(norm_obs=False, norm_reward=True)'}}, {ENV!r}, 'ppo')}}\n")
+    env = {**os.environ, "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO), os.environ.get("PYTHONPATH", "")])}
+    trained = subprocess.run([sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", ENV, "--gym-packages",
+                              "snake_env", "--env-kwargs", "max_episode_steps:50", "-f", "logs", "-conf", "joint_conf",
+                              "--eval-freq", "-1"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert trained.returncode == 0, trained.stderr[-2000:]
+    from stable_baselines3 import PPO
+
+    from snake_env.train.joint_policy import policy_class
+
+    model = PPO.load(tmp_path / "logs" / "ppo" / f"{ZOO_NAME}_1" / f"{ZOO_NAME}.zip", device="cpu")
+    assert isinstance(model.policy, policy_class("ppo"))
