@@ -24,7 +24,6 @@ from snake_env.tasks.base import (ACTUATOR_POWER_ROW, COMMON_STEP_INFO_KEYS, COM
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
-from snake_env.physics.config import sliding_into
 from snake_env.physics.batch import batch_physics
 from snake_env.physics.settings import number, split_kwargs
 
@@ -173,7 +172,9 @@ class SnakeBatch:
         # its resets redraw in place, or one robot's (n,) copied to every row
         self.row_grip = self.grip if self.grip.ndim == 2 else np.tile(self.grip, (B, 1))
         self.slip = np.zeros((B, n), np.bool_)
+        # the wheel forces at the step's end come from the step's own sweep
         self._grip_buffers = (self.wheel_force, self.traction_scale) if self.report_grip else (None, None)
+        self._wheels = (self.wheel_force, self.row_grip, self.slip) if self.report_grip else None
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
@@ -184,6 +185,9 @@ class SnakeBatch:
         # COMMON_VALUE_KEYS) and failed rows; step() hands out copies, step_first() Python scalars
         self.common_values = np.empty((len(COMMON_VALUE_KEYS), B))
         self.failed = np.zeros(B, np.bool_)
+        # row 0's views, read by step_first
+        self._first_values = self.common_values[:, 0]
+        self._first_force, self._first_slip = self.wheel_force[0], self.slip[0]
         self._context = StepContext(action=self.torques, torques=self.torques, q_prev=self.q_prev, q=self.q,
                                     u=self.u, aux=self.aux, dt=config.dt)
 
@@ -243,13 +247,14 @@ class SnakeBatch:
         The same values as :meth:`step`'s row 0, without its arrays of one element (the single env steps
         in tens of microseconds, where each of those costs a few hundred nanoseconds)."""
         rewards, terminated, extras = self._advance(action[None], True)
-        info = dict(zip(COMMON_VALUE_KEYS, self.common_values[:, 0].tolist()))
+        info = dict(zip(COMMON_VALUE_KEYS, self._first_values.tolist()))
         info["sim_failure"] = self.failed.item()
         if self.report_grip:
-            info["wheel_lateral_force"] = self.wheel_force[0].copy()
-            info["wheel_slip"] = self.slip[0].copy()
+            info["wheel_lateral_force"] = self._first_force.copy()
+            info["wheel_slip"] = self._first_slip.copy()
             info["traction_scale"] = self.traction_scale.item()
-        info.update(first_row(extras))
+        for key, value in extras.items():  # first_row's rule, without its call
+            info[key] = value.item() if value.ndim == 1 else value[0]
         return rewards.item(), terminated.item(), info
 
     def _advance(self, actions, checked: bool) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -259,17 +264,14 @@ class SnakeBatch:
         a = actions if checked else action_array(actions, self.torques.shape)
         if not _clip_scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev):
             raise ValueError(NOT_FINITE_ACTION)
-        # the wheel forces at the step's end come from the step's own sweep
         power = self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *self._grip_buffers)
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
-        failures = common_step_values(ctx, self.common_values, self.failed)
+        failures = common_step_values(ctx, self.common_values, self.failed, self._wheels)
         actuator_power = self.common_values[ACTUATOR_POWER_ROW]
         if power is not None:  # from the torques a lagged, delayed command held substep by substep
             np.copyto(actuator_power, power, where=~np.isnan(power))
-        if self.report_grip:
-            sliding_into(self.wheel_force, self.row_grip, self.slip)
         extras = task_info
         if self.task.energy_cost_weight:
             # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default
