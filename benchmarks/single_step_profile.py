@@ -67,8 +67,8 @@ def profile(env_id: str, calls: int) -> dict[str, float]:
                                           calls)
     rows["action_array (the action's float64 copy; the clip is the step's)"] = best_time(
         lambda: action_array(action, action.shape), calls)
-    rows["the common info values"] = best_time(
-        lambda: common_step_values(batch._context, batch.common_values, batch.failed), calls)
+    rows["the common info values (and the wheels' slip)"] = best_time(
+        lambda: common_step_values(batch._context, batch.common_values, batch.failed, batch._wheels), calls)
     return rows
 
 
