@@ -86,8 +86,8 @@ NOT_FINITE_ACTION = "action must be finite (no NaN or inf); values outside [-1, 
 
 
 def action_array(action, shape: tuple) -> np.ndarray:
-    """Actions as a float64 copy of ``shape`` (not yet clipped: :func:`check_actions`, or the step's
-    compiled clip); not real or a wrong shape -> ValueError."""
+    """Actions as a float64 copy of ``shape``, not yet clipped (the step's compiled call clips them);
+    not real or a wrong shape -> ValueError."""
     try:
         a = np.array(action, dtype=np.float64)  # a copy: clipped in place
     except (TypeError, ValueError):
@@ -95,27 +95,6 @@ def action_array(action, shape: tuple) -> np.ndarray:
     if a.shape != shape:
         raise ValueError(f"action must have shape {shape} (one value in [-1, 1] per joint), got {a.shape}")
     return a
-
-
-def check_actions(action, shape: tuple) -> np.ndarray:
-    """Actions as float64 clipped to [-1, 1]; wrong shape or NaN/inf -> ValueError."""
-    a = action_array(action, shape)
-    if not _clip_if_finite(a if a.ndim == 1 else a.reshape(-1)):
-        raise ValueError(NOT_FINITE_ACTION)
-    return a
-
-
-@njit(cache=True, nogil=True)
-def _clip_if_finite(a):
-    """Clip ``a`` to [-1, 1] in place; False (``a`` untouched past the first) at a NaN or inf.
-    Compiled: the single env's step is tens of microseconds, where np.isfinite, np.minimum
-    and np.maximum on a (n-1,) array would cost several."""
-    for i in range(a.size):
-        value = a[i]
-        if not math.isfinite(value):
-            return False
-        a[i] = min(max(value, -1.0), 1.0)
-    return True
 
 
 @njit(cache=True, nogil=True)
