@@ -13,7 +13,8 @@ From the joint state sampled once per env step (dt s) over an episode of L steps
   from turns about 3 rad/s without load.
 - ``torque_sign_flip_share``: for each joint the share of consecutive steps whose held
   torques have opposite signs; the largest over the joints (1.0: bang-bang chatter).
-- ``mean_power``, ``peak_power`` (W): of ``info["actuator_power"]`` = sum_k |T_k dphi_k| / dt.
+- ``mean_power``, ``peak_power`` (W): of ``info["actuator_power"]``, the motors' delivered power
+  sum_k |s A_k phidot_k| (``snake_env.tasks.base.common_step_values``).
 - ``median_grip_demand``, ``peak_grip_demand``: the wheels' lateral force over their load,
   |lambda_k| / (m_k g) (``info["wheel_lateral_force"]``, eq. 27's multipliers), over all
   wheel-steps; ``outside_friction_cone_share``: the share of wheel-steps with |lambda_k| above

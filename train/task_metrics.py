@@ -2,7 +2,7 @@
 
 Every task: the cost of transport
     CoT = sum_steps actuator_power * dt / (m_total g * distance travelled)   (dimensionless),
-actuator_power = sum_k |T_k dphi_k| / dt (W, see ``snake_env.tasks.base.actuator_power``),
+actuator_power (W) the motors' delivered power sum_k |s A_k phidot_k| (``snake_env.tasks.base.common_step_values``),
 the distance being the length of the CM's path (m); nan when the CM did not move.
 The task's own metrics come from its class (:attr:`snake_env.tasks.Task.episode_metrics`,
 ``{metric: (info key, reduction)}``): reach: success (within the env's

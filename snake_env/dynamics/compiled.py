@@ -125,6 +125,15 @@ def derivatives(model, q, u, torques, dq, du, scale=1.0):
     return _kane_sweep(model, q, u, torques, dq, du, _NO_LINKS, False, scale, False)[0]
 
 
+@njit(cache=True, nogil=True)
+def derivatives_motor(model, q, u, torques, dq, du, scale=1.0):
+    """:func:`derivatives` (the same dq, du and power, bit for bit) plus the motors' absolute power
+    sum_k |scale A_k phidot_k| (W): A_k the torque the motor delivers (after its torque-speed band and
+    current limit), ``scale`` >= 0 the traction limit's. Returns (power, motor power)."""
+    sweep = _kane_sweep(model, q, u, torques, dq, du, _NO_LINKS, False, scale, False)
+    return sweep[0], scale * sweep[9]
+
+
 # Per-link values _kane_sweep records when asked (row k of ``links``): the partial velocities and
 # velocities of eqs. 6-7, 12-14 (a1, a2 = dV_k/du, V_k, Vb_k its bias acceleration; b1, b2, W, Wb the
 # same for omega_k), the effective torque T_k of joint k (N m; actuator, damping, barrier) and
@@ -140,9 +149,10 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
     """The O(n) sweep of :func:`derivatives`; with ``record`` (a constant, folded away when False)
     it also fills ``links`` (n, LINK_CHANNELS) for :func:`wheel_lateral_forces`.
 
-    Returns (power (W), M00, M01, M11, ra0, ra1, pa, r0, r1). The motors' torques A_k enter scaled by
+    Returns (power (W), M00, M01, M11, ra0, ra1, pa, r0, r1, pm). The motors' torques A_k enter scaled by
     ``scale``; with ``split`` (a constant) also their generalized forces (ra0, ra1) and power pa
-    alone, so that the caller can add them at another scale (eq. 8 is linear in the torques)."""
+    alone, so that the caller can add them at another scale (eq. 8 is linear in the torques).
+    pm = sum_k |A_k phidot_k| (W): the motors' absolute power before any scale (scale >= 0 multiplies it)."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model[:11]
     n = m.shape[0]
     inv_room = inverse_room(limit)
@@ -165,6 +175,7 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
     ra0 = 0.0
     ra1 = 0.0
     pa = 0.0
+    pm = 0.0
     for k in range(n):
         if record:  # the link's channels (see LINK_CHANNELS)
             links[k, 0] = a1
@@ -212,6 +223,7 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
         if motor:  # the command clipped to the motor's torque-speed band and current limit
             T = motor_torque(T, phidot, stall, inv_w0, t_max)
         A = T
+        pm += abs(A * phidot)
         T = scale * A
         T -= c_joint[k] * phidot
         if limit > 0.0:
@@ -245,7 +257,7 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
     du[0], du[1] = solve_eq8(M00, M01, M11, det, r0, r1)
     dq[n] = u[0] * math.cos(q[0])
     dq[n + 1] = u[0] * math.sin(q[0])
-    return power, M00, M01, M11, ra0, ra1, pa, r0, r1
+    return power, M00, M01, M11, ra0, ra1, pa, r0, r1, pm
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -263,7 +275,8 @@ def grip_room(lam0, lamg, grip):
 
 @njit(cache=True, nogil=True)
 def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0, du_old=_NO_DU):
-    """:func:`derivatives` under the traction limit; returns (power (W), the scale s in [0, 1]).
+    """:func:`derivatives` under the traction limit; returns (power (W), the scale s in [0, 1], the motors'
+    absolute power s sum_k |A_k phidot_k| (W), as :func:`derivatives_motor`).
 
     The wheels' lateral forces are affine in the motors' torques A at a given state,
     lambda = lambda_0 + s G A (eq. 27's multipliers; lambda_0 that of the motion, the damping and
@@ -282,7 +295,7 @@ def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0
     c_wheel = model[4]
     grip = model[11]
     n = m.shape[0]
-    power, M00, M01, M11, ra0, ra1, pa, r0, r1 = _kane_sweep(model, q, u, torques, dq, du, links, True, 0.0, True)
+    power, M00, M01, M11, ra0, ra1, pa, r0, r1, pm = _kane_sweep(model, q, u, torques, dq, du, links, True, 0.0, True)
     det = M00 * M11 - M01 * M01
     g0, g1 = solve_eq8(M00, M01, M11, det, ra0, ra1)
     du0 = du[0]
@@ -334,7 +347,7 @@ def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0
     du[0], du[1] = solve_eq8(M00, M01, M11, det, r0, r1)
     for k in range(n):
         lam[k] = links[k, 12] + scale * links[k, 13]
-    return power + scale * pa, scale
+    return power + scale * pa, scale, scale * pm
 
 
 @njit(cache=True, nogil=True)
@@ -425,7 +438,7 @@ def rk4_step_workspace(model, q, u, torques, dt, n_substeps, workspace):
     for _ in range(n_substeps):
         # stage 1 at (q, u); with finite grip the traction scale is set here and held for the substep
         if traction:
-            p1, scale = traction_derivatives(model, q, u, torques, kq, ku, links, lam)
+            p1, scale, _ = traction_derivatives(model, q, u, torques, kq, ku, links, lam)
         else:
             p1 = derivatives(model, q, u, torques, kq, ku)
         for j in range(nq):
@@ -632,8 +645,9 @@ LANES = 16
 # The error-estimating variant (rk4_lanes_estimate) also keeps the last stage-4
 # derivative of u and the estimate's running maximum (rows H_K4U0, H_K4U1, H_ERR).
 # With finite grip (traction_derivatives): the substep's traction scale and the previous substep's.
+# The motors' energy of the step and its stage sum (as the work's; see derivatives_motor).
 (H_U0, H_U1, H_US0, H_US1, H_ACCU0, H_ACCU1, H_X, H_Y, H_XS, H_YS, H_ACCX, H_ACCY, H_WORK, H_PACC,
- H_K4U0, H_K4U1, H_ERR, H_SCALE, H_SCALE_OLD, H_FREE) = range(20)
+ H_K4U0, H_K4U1, H_ERR, H_SCALE, H_SCALE_OLD, H_MOTOR, H_MACC, H_FREE) = range(22)
 N_HEADER = 48  # >= BLOCK: block -1 (lane_block(0) - one block) lies in the header, see _traction_lanes
 # block rows of link k: theta_k (substep start, stage, RK4 sum), torque of joint k,
 # the sweep's channels entering link k (dV/du1, dV/du2, V, Vb, domega/du1,
@@ -643,22 +657,24 @@ N_HEADER = 48  # >= BLOCK: block -1 (lane_block(0) - one block) lies in the head
 # the backward sweep's values carried from link k+1 to k (udot at scale 0 and the motors' share,
 # the two pin forces, the least room so far). The error estimate's running maximum over the links
 # before k. The backward sweep's lambda_0 and lambda_g of wheel k (so the step's wheel forces come
-# from the k5 sweep at the final state, lambda_0 + s lambda_g, with no sweep of their own). Values a lane loop carries from link to link live
+# from the k5 sweep at the final state, lambda_0 + s lambda_g, with no sweep of their own). The sum
+# of |A_j phidot_j| over joints j < k (the motors' absolute power before the traction scale).
+# Values a lane loop carries from link to link live
 # in the blocks, never in the header: every address in the loop is then a constant distance from
 # the block's, so LLVM vectorises it without run-time alias checks.
 # Rows from B_FREE on are left to callers.
 (B_Q, B_QS, B_ACC, B_TQ, B_A1, B_A2, B_V, B_VB, B_B1, B_B2, B_W, B_WB, B_M00, B_M01, B_M11, B_R0, B_R1, B_PW,
  B_K4, B_TA, B_TP, B_C, B_S, B_RA0, B_RA1, B_PA, B_SC, B_DP0, B_DP1, B_G0, B_G1, B_FA, B_FP, B_GA, B_GP, B_ROOM,
- B_ERR, B_L0, B_LG, B_FREE) = range(40)
+ B_ERR, B_L0, B_LG, B_PM, B_FREE) = range(41)
 BLOCK = 44
 assert N_HEADER >= BLOCK
 _U = np.uint64
 # the same rows as unsigned offsets (row * LANES)
 (_H_U0, _H_U1, _H_US0, _H_US1, _H_ACCU0, _H_ACCU1, _H_X, _H_Y, _H_XS, _H_YS, _H_ACCX, _H_ACCY, _H_WORK,
- _H_PACC, _H_K4U0, _H_K4U1, _H_ERR, _H_SCALE, _H_SCALE_OLD) = (np.uint64(r * LANES) for r in range(19))
+ _H_PACC, _H_K4U0, _H_K4U1, _H_ERR, _H_SCALE, _H_SCALE_OLD, _H_MOTOR, _H_MACC) = (np.uint64(r * LANES) for r in range(21))
 (_B_Q, _B_QS, _B_ACC, _B_TQ, _B_A1, _B_A2, _B_V, _B_VB, _B_B1, _B_B2, _B_W, _B_WB, _B_M00, _B_M01, _B_M11, _B_R0,
  _B_R1, _B_PW, _B_K4, _B_TA, _B_TP, _B_C, _B_S, _B_RA0, _B_RA1, _B_PA, _B_SC, _B_DP0, _B_DP1, _B_G0, _B_G1, _B_FA,
- _B_FP, _B_GA, _B_GP, _B_ROOM, _B_ERR, _B_L0, _B_LG) = (np.uint64(r * LANES) for r in range(39))
+ _B_FP, _B_GA, _B_GP, _B_ROOM, _B_ERR, _B_L0, _B_LG, _B_PM) = (np.uint64(r * LANES) for r in range(40))
 _NEXT = np.uint64(BLOCK * LANES)  # from one block to the next
 
 
@@ -753,6 +769,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
         s[b0 + _B_R0 + l] = 0.0
         s[b0 + _B_R1 + l] = 0.0
         s[b0 + _B_PW + l] = 0.0
+        s[b0 + _B_PM + l] = 0.0
         s[b0 + _B_SC + l] = s[_H_SCALE + l]
         s[b0 + _B_ERR + l] = s[_H_ERR + l]
         if first:
@@ -785,6 +802,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
             M11 = s[o + _B_M11 + l] + (mk * a2 * a2 + Ik * b2 * b2)
             f = -cwk * V  # rolling resistance (N)
             power = s[o + _B_PW + l] + f * V
+            pm = s[o + _B_PM + l]
             r0 = s[o + _B_R0 + l] + (f * a1 - (mk * a1 * Vb + Ik * b1 * Wb))
             r1 = s[o + _B_R1 + l] + (f * a2 - (mk * a2 * Vb + Ik * b2 * Wb))
             # theta_k is not read again in this stage: its update goes here (qdot_k = omega_k)
@@ -822,6 +840,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
                 # the traction scale: 1 without grip (bit for bit A); with grip 0 in the stage-1 sweep, then
                 # the substep's (read, not branched on, so that the lane loop stays one vectorised loop)
                 A = T
+                pm += abs(A * phidot)
                 scale = s[o + _B_SC + l]
                 s[p + _B_SC + l] = scale
                 T = scale * A
@@ -859,6 +878,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
             s[p + _B_R0 + l] = r0
             s[p + _B_R1 + l] = r1
             s[p + _B_PW + l] = power
+            s[p + _B_PM + l] = pm
             if first:
                 if not joint:
                     s[p + _B_RA0 + l] = s[o + _B_RA0 + l]
@@ -904,6 +924,13 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
         work = s[_H_WORK + l]
         s[_H_WORK + l] = work + sixth * (pacc + power) if last else work
         s[_H_PACC + l] = power if first else pacc + 2.0 * power
+        # the motors' energy likewise, from |A phidot| at the substep's traction scale (1 without grip;
+        # in stage 1 with grip the scale _traction_lanes just set)
+        pmot = s[_H_SCALE + l] * s[o + _B_PM + l]
+        macc = s[_H_MACC + l]
+        motor = s[_H_MOTOR + l]
+        s[_H_MOTOR + l] = motor + sixth * (macc + pmot) if last else motor
+        s[_H_MACC + l] = pmot if first else macc + 2.0 * pmot
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -1061,7 +1088,8 @@ def rk4_lanes_estimate(model, s, nl, dt, n_substeps, tol, v_ref):
 @njit(cache=True, nogil=True)
 def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_above_tol=False):
     """:func:`rk4_step` with the error estimate of :func:`rk4_lanes_estimate`;
-    returns (work of all loads (J), error estimate / tolerance).
+    returns (work of all loads (J), error estimate / tolerance, the motors' energy (J): the integral of
+    sum_k |s A_k phidot_k| by the same RK4 weights as the work, see :func:`derivatives_motor`).
 
     ``stop_above_tol``: return as soon as the estimate exceeds the tolerance
     (> 1), with (q, u) and the work those of the substep reached. For a caller
@@ -1085,12 +1113,13 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
     lam = np.empty(n)
     du_old = np.empty(2)  # f(y1)'s udot at the substep's own traction scale, for the estimate
     work = 0.0
+    motor = 0.0
     err = 0.0
     scale = 1.0
     if traction:  # the traction scale of each substep is set at its start (see rk4_step_workspace)
-        p1, scale = traction_derivatives(model, q, u, torques, kq, ku, links, lam)
+        p1, scale, m1 = traction_derivatives(model, q, u, torques, kq, ku, links, lam)
     else:
-        p1 = derivatives(model, q, u, torques, kq, ku)
+        p1, m1 = derivatives_motor(model, q, u, torques, kq, ku)
     for i in range(n_substeps):
         # stage 1 at (q, u): kq, ku hold it (computed at the end of the previous substep)
         for j in range(nq):
@@ -1100,7 +1129,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         acc_u[1] = ku[1]
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
-        p2 = derivatives(model, qs, us, torques, kq, ku, scale)
+        p2, m2 = derivatives_motor(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + half * kq[j]
@@ -1108,7 +1137,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         acc_u[1] += 2.0 * ku[1]
         us[0] = u[0] + half * ku[0]
         us[1] = u[1] + half * ku[1]
-        p3 = derivatives(model, qs, us, torques, kq, ku, scale)
+        p3, m3 = derivatives_motor(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             acc_q[j] += 2.0 * kq[j]
             qs[j] = q[j] + dt * kq[j]
@@ -1116,7 +1145,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         acc_u[1] += 2.0 * ku[1]
         us[0] = u[0] + dt * ku[0]
         us[1] = u[1] + dt * ku[1]
-        p4 = derivatives(model, qs, us, torques, kq, ku, scale)
+        p4, m4 = derivatives_motor(model, qs, us, torques, kq, ku, scale)
         for j in range(nq):
             q[j] += sixth * (acc_q[j] + kq[j])
             k4q[j] = kq[j]
@@ -1125,12 +1154,13 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         k4u[0] = ku[0]
         k4u[1] = ku[1]
         work += sixth * (p1 + 2.0 * p2 + 2.0 * p3 + p4)
+        motor += sixth * (m1 + 2.0 * m2 + 2.0 * m3 + m4)
         # k5 = f(y_{n+1}), the next substep's k1 (FSAL); with grip the estimate takes k5's udot at
         # this substep's scale (du_old), the next substep its own
         if traction:
-            p1, scale = traction_derivatives(model, q, u, torques, kq, ku, links, lam, scale, du_old)
+            p1, scale, m1 = traction_derivatives(model, q, u, torques, kq, ku, links, lam, scale, du_old)
         else:
-            p1 = derivatives(model, q, u, torques, kq, ku)
+            p1, m1 = derivatives_motor(model, q, u, torques, kq, ku)
             du_old[0] = ku[0]
             du_old[1] = ku[1]
         for k in range(n):
@@ -1142,7 +1172,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         err = e1 if e1 > err else err
         if stop_above_tol and err > 1.0:
             break
-    return work, err
+    return work, err, motor
 
 
 @njit(cache=True, nogil=True)
@@ -1165,6 +1195,7 @@ def load_lanes(s, q, u, torques, index, start, nl):
         s[_H_US0 + l] = u[b, 0]
         s[_H_US1 + l] = u[b, 1]
         s[_H_WORK + l] = 0.0
+        s[_H_MOTOR + l] = 0.0
         s[_H_SCALE + l] = 1.0  # the motors' torques in full; with grip each substep sets its traction scale
 
 

@@ -243,18 +243,15 @@ class SnakeBatch:
         a = actions if checked else action_array(actions, self.torques.shape)
         if not _clip_scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev):
             raise ValueError(NOT_FINITE_ACTION)
-        power = self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *self._grip_buffers)
+        self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *self._grip_buffers)
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
         failures = common_step_values(ctx, self.common_values, self.failed, self._wheels)
-        actuator_power = self.common_values[ACTUATOR_POWER_ROW]
-        if power is not None:  # from the torques a lagged, delayed command held substep by substep
-            np.copyto(actuator_power, power, where=~np.isnan(power))
         extras = task_info
         if self.task.energy_cost_weight:
-            # every task: a cost on the actuator power sum_k |T_k dphi_k| / dt (W), off by default
-            extras[ENERGY_KEY] = -self.task.energy_cost_weight * actuator_power
+            # every task: a cost on the actuator power (W; common_step_values), off by default
+            extras[ENERGY_KEY] = -self.task.energy_cost_weight * self.common_values[ACTUATOR_POWER_ROW]
             rewards = rewards + extras[ENERGY_KEY]
         if self.task.slip_cost_weight:
             # every task: a cost on the wheels' lateral force beyond their grip, in link weights (the motion's

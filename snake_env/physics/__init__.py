@@ -15,7 +15,8 @@ wrappers; nothing here imports a layer above it.
 """
 
 from .config import GRAVITY, PhysicsConfig
-from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_SIZE, AUX_VX, AUX_VY, AUX_WORK,
+from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_MOTOR_ENERGY, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_SIZE, AUX_VX,
+                       AUX_VY, AUX_WORK,
                        AUX_X, AUX_Y, FAIL_ENERGY, FAIL_ERROR, FAIL_FOLD, FAIL_NONFINITE, FAIL_RUNAWAY, FAILURE_REASONS,
                        FOLD_ANGLE, MAX_SUBSTEP_ANGLE, PhysicsParams, observation_size, observe, reset, step,
                        step_inplace, wheel_lateral_forces)
@@ -23,4 +24,4 @@ from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, A
 __all__ = ["GRAVITY", "PhysicsConfig", "PhysicsParams", "step", "step_inplace", "reset", "observe",
            "wheel_lateral_forces", "observation_size", "FAILURE_REASONS", "MAX_SUBSTEP_ANGLE", "FOLD_ANGLE", "FAIL_NONFINITE", "FAIL_ENERGY",
            "FAIL_RUNAWAY", "FAIL_FOLD", "FAIL_ERROR", "AUX_SIZE", "AUX_X", "AUX_Y", "AUX_VX", "AUX_VY", "AUX_KINETIC",
-           "AUX_WORK", "AUX_FAILED", "AUX_REFINEMENTS", "AUX_RESIDUAL"]
+           "AUX_WORK", "AUX_FAILED", "AUX_REFINEMENTS", "AUX_RESIDUAL", "AUX_MOTOR_ENERGY"]

@@ -39,8 +39,8 @@ import math
 
 import numpy as np
 
-from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_VX, AUX_VY, AUX_WORK, AUX_X,
-                       AUX_Y, FAIL_ENERGY, InstantPhysics, PhysicsParams, observe, step_inplace,
+from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_MOTOR_ENERGY, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_VX, AUX_VY,
+                       AUX_WORK, AUX_X, AUX_Y, FAIL_ENERGY, InstantPhysics, PhysicsParams, observe, step_inplace,
                        wheel_lateral_forces)
 
 # relative slack when checking that a latency is a whole number of substeps (0.03 / 0.01 = 2.9999999999999996)
@@ -120,23 +120,21 @@ class ActuatorResponse(InstantPhysics):
         self.torque[:] = arrived + gap * self.lag.decay
         return self.held
 
-    def step(self, q, u, command, obs, aux, forces=None, scale=None) -> np.ndarray:
+    def step(self, q, u, command, obs, aux, forces=None, scale=None) -> None:
         """One env step of every row under ``command`` (B, n-1) (N m): q, u, obs, aux (and forces,
-        scale) as :func:`snake_env.physics.step_inplace` fills them. Returns the actuator power
-        sum_j sum_k |held_jk dphi_jk| / dt (W, (B,)) from each substep's held torque."""
+        scale) as :func:`snake_env.physics.step_inplace` fills them; the motors' energy is the sum of the
+        substeps' (each from its held torque through the motor's band and the traction scale)."""
         q0, u0 = q.copy(), u.copy()
         saved = self.previous_command.copy(), self.torque.copy(), self.held.copy()
         x0, y0, k0 = aux[:, AUX_X].copy(), aux[:, AUX_Y].copy(), aux[:, AUX_KINETIC].copy()
-        n = self.params.n_links
         work = np.zeros(q.shape[0])
         refinements = np.zeros(q.shape[0])
         failed = np.zeros(q.shape[0])
         energy = np.zeros(q.shape[0])
         for j in range(self.frame_skip):
             held = self.substep_torques(command, j)
-            phi_before = np.diff(q[:, :n], axis=1)
             step_inplace(self.substep_params, q, u, held, obs, aux, forces, scale)
-            energy += np.abs(held * (np.diff(q[:, :n], axis=1) - phi_before)).sum(axis=1)
+            energy += aux[:, AUX_MOTOR_ENERGY]
             work += aux[:, AUX_WORK]
             np.maximum(refinements, aux[:, AUX_REFINEMENTS], out=refinements)
             failed = np.where(failed == 0.0, aux[:, AUX_FAILED], failed)  # the first failure's reason
@@ -151,6 +149,7 @@ class ActuatorResponse(InstantPhysics):
         aux[:, AUX_VX] = (aux[:, AUX_X] - x0) / dt
         aux[:, AUX_VY] = (aux[:, AUX_Y] - y0) / dt
         aux[:, AUX_WORK] = work
+        aux[:, AUX_MOTOR_ENERGY] = np.where(failed == 0.0, energy, 0.0)
         aux[:, AUX_RESIDUAL] = np.where(failed == 0.0, residual, 0.0)
         aux[:, AUX_REFINEMENTS] = refinements
         aux[:, AUX_FAILED] = failed
@@ -165,9 +164,7 @@ class ActuatorResponse(InstantPhysics):
             row_aux[:, AUX_FAILED] = failed[rows]
             row_aux[:, AUX_REFINEMENTS] = refinements[rows]
             aux[rows] = row_aux
-            energy[rows] = 0.0
             if forces is not None:
                 row_forces, row_scale = forces[rows], scale[rows]
                 wheel_lateral_forces(self.params, q[rows], u[rows], self.held[rows], row_forces, row_scale)
                 forces[rows], scale[rows] = row_forces, row_scale
-        return energy / dt

@@ -180,17 +180,12 @@ class RandomizedRobots:
         """The torque each row held over its last substep (the commanded one without a lag or latency)."""
         return np.concatenate([row.held_torques(torques[b:b + 1]) for b, row in enumerate(self.rows)])
 
-    def step(self, q, u, torques, obs, aux, forces=None, scale=None) -> np.ndarray:
-        """Every row stepped with its own robot, in place; returns the actuator power (W) of the rows with a
-        lag or latency, NaN for the others (theirs comes from the commanded torques)."""
-        power = np.full(q.shape[0], np.nan)
+    def step(self, q, u, torques, obs, aux, forces=None, scale=None) -> None:
+        """Every row stepped with its own robot, in place."""
         for b, row in enumerate(self.rows):
             r = slice(b, b + 1)
             grip = (None, None) if forces is None else (forces[r], scale[r])
-            row_power = row.step(q[r], u[r], torques[r], obs[r], aux[r], *grip)
-            if row_power is not None:
-                power[b] = row_power[0]
-        return power
+            row.step(q[r], u[r], torques[r], obs[r], aux[r], *grip)
 
     def observe(self, q, u):
         pairs = [row.observe(q[b:b + 1], u[b:b + 1]) for b, row in enumerate(self.rows)]

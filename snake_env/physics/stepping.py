@@ -73,9 +73,13 @@ from snake_env.dynamics import compiled
 
 # Layout of the per-snake auxiliary output row (float64). AUX_FAILED is 0.0 or
 # a FAIL_* reason code; AUX_REFINEMENTS the substep halvings the step needed;
-# AUX_RESIDUAL its relative work-energy residual |K1 - K0 - W| / (max(K0, K1) + floor).
-AUX_X, AUX_Y, AUX_VX, AUX_VY, AUX_KINETIC, AUX_WORK, AUX_FAILED, AUX_REFINEMENTS, AUX_RESIDUAL = range(9)
-AUX_SIZE = 9
+# AUX_RESIDUAL its relative work-energy residual |K1 - K0 - W| / (max(K0, K1) + floor);
+# AUX_MOTOR_ENERGY the motors' energy over the step (J): the integral of sum_k |s A_k phidot_k|, the
+# torque each motor delivers (after its band, current limit and the traction scale s) times its joint's
+# rate, by the RK4 weights of the work (compiled.derivatives_motor); 0 for a failed step.
+(AUX_X, AUX_Y, AUX_VX, AUX_VY, AUX_KINETIC, AUX_WORK, AUX_FAILED, AUX_REFINEMENTS, AUX_RESIDUAL,
+ AUX_MOTOR_ENERGY) = range(10)
+AUX_SIZE = 10
 # Reasons a step fails (aux[AUX_FAILED]); the check order is this order.
 FAIL_NONFINITE, FAIL_ENERGY, FAIL_RUNAWAY, FAIL_FOLD, FAIL_ERROR = 1, 2, 3, 4, 5
 FAILURE_REASONS = {FAIL_NONFINITE: "non-finite state", FAIL_ERROR: "error estimate above error_tolerance",
@@ -343,8 +347,8 @@ _ZERO, _ONE = np.int64(0), np.int64(1)
 def _integrate_checked(model, settings, r_first, r_last, q0, u0, torques, k0, q, u):
     """One env step of one snake from (q0, u0) (kinetic energy k0) by the per-snake RK4
     kernel, with substeps sim_dt / 2^r for r = r_first, ..., r_last until one passes the
-    check or one fails by a fold. Returns (code, work (J), r, residual); (q, u) hold the
-    accepted state, or (q0, u0) when the step failed (code != 0, work 0)."""
+    check or one fails by a fold. Returns (code, work (J), r, residual, motors' energy (J)); (q, u)
+    hold the accepted state, or (q0, u0) when the step failed (code != 0, work and energy 0)."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
     sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     nq = q.shape[0]
@@ -364,8 +368,8 @@ def _integrate_checked(model, settings, r_first, r_last, q0, u0, torques, k0, q,
         # FAIL_FOLD), so it stops at the first substep over the tolerance: the same accepted
         # step, bit for bit, without integrating the rest of a rejected one. The finest level
         # runs to the end, so that its verdict (non-finite or error) is that of the whole step.
-        work, err = compiled.rk4_step_estimate(model, q, u, torques, dt_sub, frame_skip * sub, err_tol, h[0],
-                                               r < r_last)
+        work, err, motor = compiled.rk4_step_estimate(model, q, u, torques, dt_sub, frame_skip * sub, err_tol,
+                                                      h[0], r < r_last)
         if r < r_last and err > 1.0:
             code = FAIL_ERROR
             continue
@@ -380,14 +384,14 @@ def _integrate_checked(model, settings, r_first, r_last, q0, u0, torques, k0, q,
             finite = math.isfinite(k1)
         code, residual = _verdict(finite, err, k0, k1, work, rate, fold, dt_sub, settings)
         if code == 0:
-            return 0, work, r, residual
+            return 0, work, r, residual, motor
         if code == FAIL_FOLD:  # accurate and folded: a finer substep would fold too (module doc)
             break
     for j in range(nq):
         q[j] = q0[j]
     u[0] = u0[0]
     u[1] = u0[1]
-    return code, 0.0, used, residual
+    return code, 0.0, used, residual, 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -403,7 +407,7 @@ def _step_one(model, settings, q, u, torques, obs, aux):
     k0, _, _ = _measures(model, q, u)
     q0 = q.copy()
     u0 = u.copy()
-    code, work, r, residual = _integrate_checked(model, settings, _ZERO, max_ref, q0, u0, torques, k0, q, u)
+    code, work, r, residual, motor = _integrate_checked(model, settings, _ZERO, max_ref, q0, u0, torques, k0, q, u)
     cx, cy = _center_of_mass(model, q)
     env_dt = sim_dt * frame_skip
     aux[AUX_X] = cx
@@ -415,6 +419,7 @@ def _step_one(model, settings, q, u, torques, obs, aux):
     aux[AUX_FAILED] = code
     aux[AUX_REFINEMENTS] = r
     aux[AUX_RESIDUAL] = residual
+    aux[AUX_MOTOR_ENERGY] = motor
 
 
 # --------------------------------------------------------------------------- lane kernels
@@ -434,9 +439,10 @@ _B_COS, _B_SIN, _B_PHI, _B_PHIDOT = (_U((compiled.B_FREE + i) * _LANES) for i in
 _B_PX, _B_PY, _B_SX, _B_SY = (_U(row * _LANES) for row in (compiled.B_A1, compiled.B_A2, compiled.B_B1, compiled.B_B2))
 _B_V, _B_W, _B_K = (_U(row * _LANES) for row in (compiled.B_V, compiled.B_W, compiled.B_M00))
 _B_Q = _U(compiled.B_Q * _LANES)
-_H_X, _H_Y, _H_U0, _H_U1, _H_WORK, _H_ERR = (
+assert compiled.B_FREE + 4 <= compiled.BLOCK
+_H_X, _H_Y, _H_U0, _H_U1, _H_WORK, _H_ERR, _H_MOTOR = (
     _U(row * _LANES) for row in (compiled.H_X, compiled.H_Y, compiled.H_U0, compiled.H_U1, compiled.H_WORK,
-                                 compiled.H_ERR))
+                                 compiled.H_ERR, compiled.H_MOTOR))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -529,8 +535,8 @@ def _observe_lanes(model, s, nl):
 
 
 @njit(cache=True, nogil=True)
-def _load_lane(s, lane, q, u, work):
-    """Put one snake's state (q (n+2,), u (2,)) and work (J) into lane ``lane`` of the scratch."""
+def _load_lane(s, lane, q, u, work, motor):
+    """Put one snake's state (q (n+2,), u (2,)), work and motors' energy (J) into lane ``lane`` of the scratch."""
     n = q.shape[0] - 2
     for k in range(n):
         s[compiled.lane_block(k) + _B_Q + lane] = q[k]
@@ -539,6 +545,7 @@ def _load_lane(s, lane, q, u, work):
     s[_H_U0 + lane] = u[0]
     s[_H_U1 + lane] = u[1]
     s[_H_WORK + lane] = work
+    s[_H_MOTOR + lane] = motor
 
 
 # inline="always": one dispatcher level less between the env step and the lane stages (see
@@ -584,17 +591,18 @@ def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index
         b = index[start + l]
         in_lane[l] = False
         work = 0.0
+        motor = 0.0
         r = 0
         if max_ref > 0 and code != FAIL_FOLD:  # an accurate fold is final (module doc)
-            code, work, r, residual = _integrate_checked(model, settings, _ONE, max_ref, q[b], u[b], torques[b], k0,
-                                                         q1, u1)
+            code, work, r, residual, motor = _integrate_checked(model, settings, _ONE, max_ref, q[b], u[b],
+                                                                torques[b], k0, q1, u1)
         else:  # element by element: a slice copy compiles numba's shape-mismatch message (~2 s cold)
             for j in range(n + 2):
                 q1[j] = q[b, j]
             u1[0] = u[b, 0]
             u1[1] = u[b, 1]
         # the accepted refined state, or the pre-step state of a failed step
-        _load_lane(s, lane, q1, u1, work)
+        _load_lane(s, lane, q1, u1, work, motor)
         codes[l] = code
         refinements[l] = r
         residuals[l] = residual
@@ -638,6 +646,7 @@ def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index
         aux[b, AUX_FAILED] = codes[l]
         aux[b, AUX_REFINEMENTS] = refinements[l]
         aux[b, AUX_RESIDUAL] = residuals[l]
+        aux[b, AUX_MOTOR_ENERGY] = s[_H_MOTOR + lane]
         if forces.shape[0] > 0:
             if in_lane[l] and model[11].shape[0] > 0:  # from the k5 traction pass at the final state
                 scale[b] = compiled.lane_wheel_forces(s, lane, n, forces[b])
@@ -740,6 +749,7 @@ def _reset_one(model, settings, noise, q, u, obs, aux):
     aux[AUX_FAILED] = 0.0
     aux[AUX_REFINEMENTS] = 0.0
     aux[AUX_RESIDUAL] = 0.0
+    aux[AUX_MOTOR_ENERGY] = 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -762,6 +772,7 @@ def _observe_batch(model, settings, q, u, obs, aux):
         aux[b, AUX_FAILED] = 0.0
         aux[b, AUX_REFINEMENTS] = 0.0
         aux[b, AUX_RESIDUAL] = 0.0
+        aux[b, AUX_MOTOR_ENERGY] = 0.0
 
 
 # --------------------------------------------------------------------------- pure API
@@ -789,7 +800,7 @@ def step(params: PhysicsParams, q, u, torques):
     Returns (q_next, u_next, obs, aux); aux columns are AUX_* (CM position (m),
     CM velocity over the step (m/s), kinetic energy (J), work of all loads (J),
     failure code (0 or FAIL_*), substep halvings used, relative work-energy
-    residual). A failed snake keeps its input state. Inputs are not modified.
+    residual, the motors' energy (J)). A failed snake keeps its input state. Inputs are not modified.
     """
     q, u = _as_state(params, q, u)
     torques = np.ascontiguousarray(torques, dtype=np.float64)
@@ -897,7 +908,7 @@ class InstantPhysics:
 
     The interface every batch physics shares (:func:`snake_env.physics.batch.batch_physics` picks one):
     ``reset(rows, noise, rng)``, ``observe(q, u)``, ``step(q, u, torques, obs, aux, forces, scale)``
-    (returns the actuator power (W, (B,)) where it differs from the commanded torques', else None),
+    (in place: the state, observation, aux row with the motors' energy, and the wheels' forces),
     ``wheel_lateral_forces``, the wheels' ``grip`` and ``wheel_load`` (N, (B, n) or (n,)) and the
     per-row ``draws`` of a randomized batch ({} here)."""
 
@@ -916,7 +927,6 @@ class InstantPhysics:
 
     def step(self, q, u, torques, obs, aux, forces=None, scale=None):
         step_inplace(self.params, q, u, torques, obs, aux, forces, scale)
-        return None
 
     def held_torques(self, torques):
         """The torques (N m) held over the last substep of every row."""

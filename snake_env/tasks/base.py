@@ -30,7 +30,7 @@ from snake_env.controllers import gait_for_links, make_baseline
 from snake_env.physics import GRAVITY, PhysicsConfig
 from snake_env.physics.config import sliding_into
 from snake_env.physics.settings import check_fields, setting
-from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_VX, AUX_VY, AUX_WORK, AUX_X, AUX_Y
+from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_MOTOR_ENERGY, AUX_VX, AUX_VY, AUX_WORK, AUX_X, AUX_Y
 
 DEFAULT_RESET_NOISE_SCALE = 0.1  # rad for the angles, m/s and rad/s for the speeds
 DEFAULT_CTRL_COST_WEIGHT = 1e-4  # per (N m / max_torque)^2, like Swimmer-v5
@@ -97,13 +97,13 @@ _X, _Y, _DISTANCE, _VX, _VY, _KINETIC, _POWER, _ACTUATOR = range(8)
 
 
 @njit(cache=True, nogil=True)
-def _common_info(aux, torques, q_prev, q, dt, out, failed):
+def _common_info(aux, dt, out, failed):
     """out (8, B), failed (B,): the common step info of every row (one compiled pass: the single env
     steps at tens of microseconds, where a dozen numpy calls on (1,) arrays would dominate).
-    Actuator power: sum_k |T_k dphi_k| / dt (W), dphi_k from the unwrapped link angles.
+    Actuator power: the motors' energy of the step (aux's AUX_MOTOR_ENERGY) / dt (W).
     Returns the number of failed rows."""
     failures = 0
-    for b in range(q.shape[0]):
+    for b in range(aux.shape[0]):
         x = aux[b, AUX_X]
         y = aux[b, AUX_Y]
         out[_X, b] = x
@@ -113,11 +113,7 @@ def _common_info(aux, torques, q_prev, q, dt, out, failed):
         out[_VY, b] = aux[b, AUX_VY]
         out[_KINETIC, b] = aux[b, AUX_KINETIC]
         out[_POWER, b] = aux[b, AUX_WORK] / dt
-        total = 0.0
-        for k in range(torques.shape[1]):
-            dphi = (q[b, k + 1] - q[b, k]) - (q_prev[b, k + 1] - q_prev[b, k])
-            total += abs(torques[b, k] * dphi)
-        out[_ACTUATOR, b] = total / dt
+        out[_ACTUATOR, b] = aux[b, AUX_MOTOR_ENERGY] / dt
         failed[b] = aux[b, AUX_FAILED] != 0.0
         failures += failed[b]
     return failures
@@ -131,22 +127,24 @@ ACTUATOR_POWER_ROW = _ACTUATOR
 def common_step_values(ctx: StepContext, out: np.ndarray, failed: np.ndarray, wheels: tuple | None = None) -> int:
     """Fill ``out`` (len(COMMON_VALUE_KEYS), B) with the info of every task and ``failed`` (B,) with the
     failed rows; return the number of failed rows. Caller-owned buffers: the vector env hands out copies,
-    the single env Python scalars of row 0 (one ``tolist``). ``actuator_power`` = sum_k |T_k dphi_k| / dt
-    (W): the torques are held over the step, so T_k dphi_k is exactly the work of T_k phidot_k in the
-    step; it equals the integral of |T_k phidot_k| when phidot_k keeps its sign in the step (0.04 s,
-    short against the gaits' periods). ``wheels``: (lateral forces (B, n) (N), grips (B, n) (N), out (B, n)
-    bool) to flag in the same compiled call each wheel that slides (:func:`snake_env.physics.config.sliding`)."""
+    the single env Python scalars of row 0 (one ``tolist``). ``actuator_power`` (W) = the step's mean of
+    sum_k |s A_k phidot_k|: the torque each motor delivers (the command through its torque-speed band and
+    current limit, times the traction scale s) times its joint's rate, integrated by the physics step with
+    the work's RK4 weights (:data:`snake_env.physics.AUX_MOTOR_ENERGY`). Negative work (a motor braking
+    its joint) counts as a cost too, as a motor without regeneration spends it. ``wheels``: (lateral
+    forces (B, n) (N), grips (B, n) (N), out (B, n) bool) to flag in the same compiled call each wheel
+    that slides (:func:`snake_env.physics.config.sliding`)."""
     if wheels is None:
-        return _common_info(ctx.aux, ctx.torques, ctx.q_prev, ctx.q, ctx.dt, out, failed)
-    return _common_info_and_slip(ctx.aux, ctx.torques, ctx.q_prev, ctx.q, ctx.dt, out, failed, *wheels)
+        return _common_info(ctx.aux, ctx.dt, out, failed)
+    return _common_info_and_slip(ctx.aux, ctx.dt, out, failed, *wheels)
 
 
 @njit(cache=True, nogil=True)
-def _common_info_and_slip(aux, torques, q_prev, q, dt, out, failed, forces, grip, slip):
+def _common_info_and_slip(aux, dt, out, failed, forces, grip, slip):
     """:func:`_common_info` and :func:`~snake_env.physics.config.sliding_into` in one compiled call (each
     call costs the single env's ~15 us step ~0.4 us)."""
     sliding_into(forces, grip, slip)
-    return _common_info(aux, torques, q_prev, q, dt, out, failed)
+    return _common_info(aux, dt, out, failed)
 
 
 def common_reset_info(aux: np.ndarray) -> dict[str, np.ndarray]:

@@ -9,7 +9,7 @@ from snake_env.dynamics import compiled
 from snake_env import physics
 from snake_env.physics import stepping
 from snake_env.envs import SnakeEnv
-from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_SIZE, AUX_WORK
+from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_MOTOR_ENERGY, AUX_SIZE, AUX_WORK
 
 
 def _states(rng, n, batch, bend=1.2):
@@ -59,6 +59,7 @@ def test_batch_rows_equal_single_steps_with_large_angles_and_failures(rng):
     np.testing.assert_array_equal(q_b[9], q[9])
     np.testing.assert_array_equal(u_b[9], u[9])
     assert aux_b[9, AUX_WORK] == 0.0
+    assert aux_b[9, AUX_MOTOR_ENERGY] == 0.0
     obs_before, _ = physics.observe(env.params, q[9], u[9])
     np.testing.assert_array_equal(obs_b[9], obs_before)
     for b in range(B):
@@ -68,10 +69,12 @@ def test_batch_rows_equal_single_steps_with_large_angles_and_failures(rng):
         np.testing.assert_array_equal(obs_s, obs_b[b])
         np.testing.assert_array_equal(aux_s, aux_b[b])
     # the turned snake moved as the unturned one (up to the rounding of its angles, ~3e-11 rad)
-    q_plain, u_plain, obs_plain, _ = physics.step(env.params, q[4] - np.r_[np.full(n, 2 * np.pi * 32_000), 0, 0],
-                                                  u[4], torques[4])
+    q_plain, u_plain, obs_plain, aux_plain = physics.step(env.params, q[4] - np.r_[np.full(n, 2 * np.pi * 32_000), 0, 0],
+                                                          u[4], torques[4])
     np.testing.assert_allclose(u_b[4], u_plain, atol=1e-9)
     np.testing.assert_allclose(obs_b[4], obs_plain, atol=1e-9)
+    assert aux_plain[AUX_MOTOR_ENERGY] > 0.0  # the per-snake kernel's motor energy, as the lanes'
+    assert aux_b[4, AUX_MOTOR_ENERGY] == pytest.approx(aux_plain[AUX_MOTOR_ENERGY], rel=1e-8)
 
 
 def test_observation_of_a_stepped_state_equals_observe(rng):

@@ -282,7 +282,7 @@ def _refined_step_by_whole_attempts(p, q0, u0, torques):
     for r in range(1, p.max_refinements + 1):
         q, u = q0.copy(), u0.copy()
         sub = 2 ** r
-        work, err = compiled.rk4_step_estimate(p.kernel_model, q, u, torques, p.sim_dt / sub, p.frame_skip * sub,
+        work, err, _ = compiled.rk4_step_estimate(p.kernel_model, q, u, torques, p.sim_dt / sub, p.frame_skip * sub,
                                                p.error_tolerance, h[0], False)
         finite = bool(np.isfinite(q).all() and np.isfinite(u).all() and math.isfinite(work))
         k1, rate, fold = stepping._measures(p.kernel_model, q, u) if finite else (math.nan,) * 3

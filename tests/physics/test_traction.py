@@ -39,7 +39,8 @@ def _random_state(rng, n, speed=1.0):
 
 @pytest.mark.parametrize("n", [2, 3, 5, 12])
 def test_scaled_step_is_the_plain_sweep_under_the_scaled_torques(rng, n):
-    """udot, the power and lambda at the chosen scale equal the grip-free kernel's under s * torques."""
+    """udot, the power, the motors' absolute power and lambda at the chosen scale equal the grip-free
+    kernel's under s * torques."""
     model, plain = _models(n, 0.6, joint_limit=None)
     links = np.empty((n, compiled.LINK_CHANNELS))
     scales = []
@@ -47,14 +48,16 @@ def test_scaled_step_is_the_plain_sweep_under_the_scaled_torques(rng, n):
         q, u = _random_state(rng, n, speed=0.1)
         torques = rng.uniform(-1.0, 1.0, n - 1) * rng.choice([0.05, 3.0])
         dq, du, lam = np.empty(n + 2), np.empty(2), np.empty(n)
-        power, scale = compiled.traction_derivatives(model, q, u, torques, dq, du, links, lam)
+        power, scale, motor = compiled.traction_derivatives(model, q, u, torques, dq, du, links, lam)
         dq_ref, du_ref, lam_ref = np.empty(n + 2), np.empty(2), np.empty(n)
         power_ref = compiled.derivatives(plain, q, u, scale * torques, dq_ref, du_ref)
+        _, motor_ref = compiled.derivatives_motor(plain, q, u, scale * torques, np.empty(n + 2), np.empty(2))
         compiled.wheel_lateral_forces(plain, q, u, scale * torques, np.empty((n, compiled.LINK_CHANNELS)),
                                       np.empty(n + 2), np.empty(2), lam_ref)
         np.testing.assert_allclose(du, du_ref, rtol=1e-10, atol=1e-10)
         np.testing.assert_array_equal(dq, dq_ref)
         assert power == pytest.approx(power_ref, rel=1e-10, abs=1e-10)
+        assert motor == pytest.approx(motor_ref, rel=1e-12, abs=1e-12)
         np.testing.assert_allclose(lam, lam_ref, rtol=1e-10, atol=1e-9)
         scales.append(scale)
     assert min(scales) < 1.0 and max(scales) == 1.0  # the draws exercise both cases
@@ -73,7 +76,7 @@ def test_scale_is_the_largest_that_keeps_the_wheels_within_their_grip(rng):
         q, u = _random_state(rng, n, speed=rng.choice([0.1, 2.0]))
         torques = rng.uniform(-3.0, 3.0, n - 1)
         lam, lam0 = np.empty(n), np.empty(n)
-        _, scale = compiled.traction_derivatives(model, q, u, torques, np.empty(n + 2), np.empty(2), links, lam)
+        _, scale, _ = compiled.traction_derivatives(model, q, u, torques, np.empty(n + 2), np.empty(2), links, lam)
         compiled.wheel_lateral_forces(plain, q, u, 0.0 * torques, *scratch, lam0)
         bound = np.maximum(grip, np.abs(lam0))
         assert 0.0 <= scale <= 1.0

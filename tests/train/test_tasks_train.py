@@ -99,16 +99,23 @@ def test_cost_of_transport_is_actuator_energy_over_weight_times_distance():
     assert summary["mean_cost_of_transport"] == pytest.approx(3.0 / 90.0)  # nan episodes left out
 
 
-def test_actuator_power_is_the_work_of_the_torques_over_the_joint_angle_changes():
+def test_actuator_power_of_ideal_sources_is_the_commanded_work_over_the_joint_angle_changes():
+    """On the previous physics (ideal sources, no traction limit) the delivered torque is the held
+    command T_k, so the motors' energy of a step, the integral of |T_k phidot_k|, is at least
+    |T_k dphi_k| (equal while a joint keeps turning one way; above it where a joint reverses in the step)."""
     import gymnasium as gym
 
     env = gym.make("snake_env/SnakeCommand5-v1")
     env.reset(seed=0)
     rng = np.random.default_rng(0)
+    above = []
     for _ in range(10):
         q0, _ = env.unwrapped.state
         a = rng.uniform(-1, 1, 4)
         *_, info = env.step(a)
         q1, _ = env.unwrapped.state
         dphi = np.diff(q1[:5]) - np.diff(q0[:5])
-        assert info["actuator_power"] == pytest.approx(np.sum(np.abs(a * env.unwrapped.max_torque * dphi)) / 0.04)
+        commanded = np.sum(np.abs(a * env.unwrapped.max_torque * dphi)) / 0.04
+        assert info["actuator_power"] >= commanded * (1.0 - 1e-9)
+        above.append(info["actuator_power"] / commanded)
+    assert max(above) > 1.01  # some joint reversed within a step under these random commands
