@@ -78,14 +78,9 @@ class ReachTask(Task):
       3 Dec 2026 without a new version (observations, rewards and terminations
       unchanged): `wheel_slip` no longer flags a wheel the traction limit holds at
       its grip, which rounding put up to 4.4e-16 of the grip above it. Corrected
-      4 Dec 2026 without a new version (observations, terminations and rewards at
-      the default `energy_cost_weight=0` unchanged): `actuator_power` is the power
-      the motors deliver, the step's mean of sum_k |s A_k phidot_k| (the torque
-      after the motor's band, current limit and traction scale s, integrated with
-      the step); it was sum_k |T_k dphi_k| / dt of the commanded torques, about 4x
-      too high where the band or the traction limit binds (Snake5-v3 PPO entry:
-      205 J against 50 J over an episode). A reward with `energy_cost_weight` > 0
-      changes with it.
+      4 Dec 2026 as the forward task's v3 (docs/envs/forward.md): `actuator_power`
+      is the power the motors deliver, no longer the commanded torques times the
+      joint rotation; only a reward with `energy_cost_weight` > 0 changes with it.
     * v1: a step that meets every accuracy check but ends folded (|phi_k| reaches
       FOLD_ANGLE) fails at once instead of being refined up to `max_refinements`
       times (the finer substeps folded too). Only settings that can fold differ
