@@ -11,6 +11,10 @@ are re-scored on many full-length episodes and the best mean is written to ``ser
 
 Score: mean forward speed of the snake's centre of mass, the mean of the
 env's ``info["x_velocity"]`` (m/s) over the episode, i.e. x displacement / time.
+With ``max_outside_share`` (``--max-outside-share``), a gait whose wheels leave the
+friction cone (``info["wheel_slip"]``) on more than that share of wheel-steps scores
+below every gait within it, by how far it is over (so CMA-ES is led back inside), and
+only finalists within it can win: the searched gait is one real wheels can run.
 
     python -m snake_env.agents.search --env snake_env/Snake5-v2
 """
@@ -52,6 +56,8 @@ class SearchResult:
     speed_std: float  # m/s, over those episodes
     evaluated: int  # gaits rolled out during the search
     seconds: float
+    outside_share: float = math.nan  # share of wheel-steps outside the friction cone, final re-scoring
+    max_outside_share: float | None = None  # the search's limit on it (None: none)
 
 
 def env_geometry(env_id: str, env_kwargs: dict) -> tuple[int, float, float, bool]:
@@ -81,6 +87,12 @@ def rollout_speeds(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int
 
     A gait whose rollout ended early (the env's ``sim_failure`` truncation) or
     broke the work-energy balance gets NaN: its speed is not physical."""
+    return rollout_scores(env_id, env_kwargs, plist, n_steps, seed)[0]
+
+
+def rollout_scores(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(speeds, outside shares) of :func:`rollout_speeds`: also each gait's share of wheel-steps outside
+    the friction cone (``info["wheel_slip"]``; 0 with unlimited grip), NaN where the speed is."""
     import gymnasium as gym
 
     import snake_env  # noqa: F401
@@ -96,6 +108,7 @@ def rollout_speeds(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int
         work = np.zeros(num)
         peak = kinetic0.copy()
         total = np.zeros(num)
+        slipping = np.zeros(num)
         failed = np.zeros(num, bool)
         for step in range(n_steps):
             # a runaway state can overflow the float32 observation: such a row
@@ -106,6 +119,8 @@ def rollout_speeds(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int
             action[failed] = 0.0
             obs, _, terminated, truncated, info = envs.step(action)
             total += np.asarray(info["x_velocity"], dtype=np.float64)
+            if "wheel_slip" in info:
+                slipping += np.asarray(info["wheel_slip"]).mean(axis=1)
             kinetic = np.asarray(info["kinetic_energy"], dtype=np.float64)
             work += np.asarray(info["power"], dtype=np.float64) * dt
             peak = np.maximum(peak, kinetic)
@@ -117,8 +132,10 @@ def rollout_speeds(env_id: str, env_kwargs: dict, plist, n_steps: int, seed: int
             if failed.all():
                 break
         speeds = total / n_steps
+        shares = slipping / n_steps
         speeds[failed] = np.nan
-        return speeds
+        shares[failed] = np.nan
+        return speeds, shares
     finally:
         envs.close()
 
@@ -175,8 +192,11 @@ def search_family(family: str, score, rng: np.random.Generator, population: int,
 
 def search(env_id: str, env_kwargs: dict | None = None, families=FAMILIES, population: int = 192,
            generations: int = 10, elite: int = 8, search_steps: int = 400, repeats: int = 3,
-           final_steps: int = 1000, final_episodes: int = 16, finalists: int = 6, seed: int = 0) -> SearchResult:
+           final_steps: int = 1000, final_episodes: int = 16, finalists: int = 6, seed: int = 0,
+           max_outside_share: float | None = None) -> SearchResult:
     """Best serpenoid gait for ``env_id`` over both families (see module doc).
+    ``max_outside_share``: the largest share of wheel-steps outside the friction cone a gait may have
+    (None: no limit).
 
     Every gait is scored on ``repeats`` random starts during the search and the
     ``finalists`` best of each family on ``final_episodes`` full-length
@@ -189,6 +209,8 @@ def search(env_id: str, env_kwargs: dict | None = None, families=FAMILIES, popul
                         ("finalists", finalists)):
         if not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if max_outside_share is not None and not 0.0 <= max_outside_share < 1.0:
+        raise ValueError(f"max_outside_share must be in [0, 1) or None, got {max_outside_share!r}")
     if not isinstance(generations, int) or generations < 0:
         raise ValueError(f"generations must be an integer >= 0, got {generations!r}")
     unknown = [f for f in families if f not in FAMILIES]
@@ -202,28 +224,48 @@ def search(env_id: str, env_kwargs: dict | None = None, families=FAMILIES, popul
         def score(plist):
             nonlocal evaluated
             evaluated += len(plist) * repeats
-            speeds = rollout_speeds(env_id, env_kwargs, list(plist) * repeats, search_steps, int(rng.integers(2**31)))
+            speeds, shares = rollout_scores(env_id, env_kwargs, list(plist) * repeats, search_steps,
+                                            int(rng.integers(2**31)))
             scores = speeds.reshape(repeats, len(plist)).mean(axis=0)
+            if max_outside_share is not None:
+                scores = limit_slip(scores, shares.reshape(repeats, len(plist)).mean(axis=0), max_outside_share)
             return np.where(np.isnan(scores), FAILED_SCORE, scores)
 
         points, scores = search_family(family, score, rng, population, generations, min(elite, population))
         order = np.argsort(-scores)[:finalists]
         candidates += _decode(family, points[order])
     # re-score the finalists of both families on full episodes from fresh starts
-    per_episode = final_scores(env_id, env_kwargs, candidates, final_steps, final_episodes, seed + 1000)
+    per_episode, shares = final_scores(env_id, env_kwargs, candidates, final_steps, final_episodes, seed + 1000,
+                                       with_shares=True)
     mean = per_episode.mean(axis=0)  # NaN if any episode failed or was not physical
+    if max_outside_share is not None:
+        mean = np.where(shares.mean(axis=0) <= max_outside_share, mean, np.nan)
     if np.isnan(mean).all():
-        raise ValueError(f"every finalist gait of {env_id} failed or broke the work-energy balance; widen the search")
+        within = "" if max_outside_share is None else f" or left the friction cone on more than {max_outside_share}"
+        raise ValueError(f"every finalist gait of {env_id} failed or broke the work-energy balance{within}; "
+                         f"widen the search")
     best = int(np.nanargmax(mean))
     return SearchResult(params=candidates[best], speed=float(mean[best]), speed_std=float(per_episode[:, best].std()),
                         evaluated=evaluated + len(candidates) * final_episodes,
-                        seconds=time.perf_counter() - started)
+                        seconds=time.perf_counter() - started, outside_share=float(shares[:, best].mean()),
+                        max_outside_share=max_outside_share)
 
 
-def final_scores(env_id: str, env_kwargs: dict, candidates, steps: int, episodes: int, seed: int) -> np.ndarray:
-    """Speeds (episodes, len(candidates)) (m/s), all in one batched rollout."""
-    speeds = rollout_speeds(env_id, env_kwargs, list(candidates) * episodes, steps, seed)
-    return speeds.reshape(episodes, len(candidates))
+def limit_slip(scores: np.ndarray, shares: np.ndarray, max_share: float) -> np.ndarray:
+    """Scores of gaits with these outside-cone shares: unchanged within ``max_share``; above it, minus
+    the share over it below zero, so that every gait over the limit ranks below every gait within it
+    that moves forward, and a gait nearer the limit above one farther out."""
+    over = shares - max_share
+    return np.where(over <= 0.0, scores, np.minimum(scores, 0.0) - over)
+
+
+def final_scores(env_id: str, env_kwargs: dict, candidates, steps: int, episodes: int, seed: int,
+                 with_shares: bool = False):
+    """Speeds (episodes, len(candidates)) (m/s), all in one batched rollout; with ``with_shares``
+    also the outside-cone shares of the same shape."""
+    speeds, shares = rollout_scores(env_id, env_kwargs, list(candidates) * episodes, steps, seed)
+    shape = (episodes, len(candidates))
+    return (speeds.reshape(shape), shares.reshape(shape)) if with_shares else speeds.reshape(shape)
 
 
 def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=None, note: str = "") -> None:
@@ -235,6 +277,9 @@ def save_result(env_id: str, env_kwargs: dict, result: SearchResult, path=None, 
         "params": result.params.to_dict(),
         "env_kwargs": dict(env_kwargs),
         "search": {"mean_forward_velocity": round(result.speed, 5), "std_forward_velocity": round(result.speed_std, 5),
+                   "outside_friction_cone_share": round(result.outside_share, 5),
+                   **({"max_outside_friction_cone_share": result.max_outside_share}
+                      if result.max_outside_share is not None else {}),
                    "gaits_evaluated": result.evaluated, "seconds": round(result.seconds, 1),
                    **({"note": note} if note else {})},
     }
@@ -259,6 +304,9 @@ def main(argv=None) -> int:
     parser.add_argument("--n-links", type=int, default=None,
                         help="a length with no id of its own, on the generic id (--env snake_env/Snake-vN): the "
                              "gait is saved as snake_env/Snake{n}-vN, where the baselines of n_links=n look")
+    parser.add_argument("--max-outside-share", type=float, default=None,
+                        help="largest share of wheel-steps outside the friction cone a gait may have, in [0, 1) "
+                             "(default: no limit)")
     parser.add_argument("--dry-run", action="store_true", help="print the result, do not write it")
     args = parser.parse_args(argv)
     env_kwargs, key = {}, args.env_id
@@ -271,10 +319,12 @@ def main(argv=None) -> int:
     try:
         result = search(args.env_id, env_kwargs, families=args.families, population=args.population,
                         generations=args.generations, search_steps=args.search_steps, repeats=args.repeats,
-                        final_episodes=args.final_episodes, seed=args.seed)
+                        final_episodes=args.final_episodes, seed=args.seed,
+                        max_outside_share=args.max_outside_share)
     except ValueError as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
-    print(f"{key}: {result.params} -> {result.speed:.4f} +- {result.speed_std:.4f} m/s "
+    print(f"{key}: {result.params} -> {result.speed:.4f} +- {result.speed_std:.4f} m/s, "
+          f"{100 * result.outside_share:.2f} % of wheel-steps outside the friction cone "
           f"({result.evaluated} gaits, {result.seconds:.0f} s)")
     if not args.dry_run:
         import cma
@@ -282,7 +332,8 @@ def main(argv=None) -> int:
         note = (f"cma {cma.__version__} CMA-ES after random search: `python -m snake_env.agents.search --env {args.env_id} "
                 f"--families {' '.join(args.families)} --population {args.population} --generations {args.generations} "
                 f"--search-steps {args.search_steps} --repeats {args.repeats} --final-episodes {args.final_episodes} "
-                f"--seed {args.seed}{f' --n-links {args.n_links}' if args.n_links is not None else ''}`")
+                f"--seed {args.seed}{f' --n-links {args.n_links}' if args.n_links is not None else ''}"
+                f"{f' --max-outside-share {args.max_outside_share}' if args.max_outside_share is not None else ''}`")
         save_result(key, env_kwargs, result, args.output, note=note)
         print(f"saved to {config_path(GAITS_FILE, args.output)}")
     return 0

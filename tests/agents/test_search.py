@@ -78,3 +78,42 @@ def test_a_length_with_no_id_is_searched_on_the_generic_id(tmp_path, capsys):
             search.main([*bad, *args])
         assert exit_info.value.code == 2
         assert "--n-links needs the generic id snake_env/Snake-vN" in capsys.readouterr().err
+
+
+def test_outside_share_is_the_share_of_wheel_steps_the_env_flags():
+    """rollout_scores' second value is the mean over steps and wheels of info["wheel_slip"] in a single env."""
+    env_id = "snake_env/Snake8-v3"
+    params = load_params(env_id)[0]  # the searched Snake8-v3 gait leaves the cone (19 % of wheel-steps over 1000 steps)
+    steps = 120
+    speeds, shares = search.rollout_scores(env_id, {}, [params], steps, seed=3)
+    env = gym.make(env_id)
+    controller = SerpenoidController(params, 8, env.unwrapped.max_torque, env.unwrapped.dt)
+    obs, _ = env.reset(seed=3)
+    flags = []
+    for _ in range(steps):
+        obs, _, _, _, info = env.step(controller.act(obs))
+        flags.append(info["wheel_slip"])
+    env.close()
+    assert shares[0] == pytest.approx(np.mean(flags), rel=1e-12)
+    assert 0.0 < shares[0] < 0.6
+    _, no_grip = search.rollout_scores("snake_env/Snake8-v2", {}, [params], 20, seed=3)
+    assert no_grip[0] == 0.0  # v2: unlimited grip, no info["wheel_slip"]
+
+
+def test_slip_limit_ranks_every_gait_within_it_above_every_gait_beyond_it():
+    scores = np.array([0.30, 0.02, 0.50, 0.40, -0.10, 0.20])
+    shares = np.array([0.005, 0.0, 0.02, 0.30, 0.0, 0.011])
+    limited = search.limit_slip(scores, shares, 0.01)
+    within, beyond = limited[shares <= 0.01], limited[shares > 0.01]
+    np.testing.assert_array_equal(within, scores[shares <= 0.01])
+    assert beyond.max() < within[within > 0.0].min()
+    assert limited[5] > limited[2] > limited[3]  # nearer the limit ranks higher
+
+
+def test_search_with_a_slip_limit_returns_a_gait_within_it():
+    env_id = "snake_env/Snake8-v3"
+    result = search.search(env_id, population=8, generations=1, elite=2, search_steps=40, repeats=1, final_steps=60,
+                           final_episodes=2, finalists=3, seed=2, max_outside_share=0.05)
+    assert result.outside_share <= 0.05 and result.max_outside_share == 0.05
+    with pytest.raises(ValueError, match="max_outside_share must be in"):
+        search.search(env_id, max_outside_share=1.0)
