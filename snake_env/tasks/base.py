@@ -87,11 +87,6 @@ def link_centers(config: PhysicsConfig, q: np.ndarray) -> np.ndarray:
     return q[n:n + 2] + np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
 
 
-def joint_angle_change(q_prev: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Change of phi_k = theta_{k+1} - theta_k over the step (rad), from the unwrapped angles."""
-    return np.diff(q, axis=-1)[..., :-2] - np.diff(q_prev, axis=-1)[..., :-2]
-
-
 # rows of the matrix filled by _common_info, in the order of COMMON_STEP_INFO_KEYS
 _X, _Y, _DISTANCE, _VX, _VY, _KINETIC, _POWER, _ACTUATOR = range(8)
 
