@@ -80,23 +80,27 @@ class KernelModel(NamedTuple):
     torque_limit: float = math.inf  # N m
     # the wheels' grip mu m_k g (N), (n,): the traction limit of the module doc; empty (0,): unlimited grip
     wheel_grip: np.ndarray = np.empty(0)
+    # each joint motor's reflected rotor inertia N^2 J_r (kg m^2), (n-1,): the rotor's kinetic energy
+    # 1/2 N^2 J_r phidot_k^2 (MuJoCo's joint armature); empty (0,): massless rotors (the paper's model)
+    rotor_inertia: np.ndarray = np.empty(0)
 
 
 def kernel_model(mass, half_length, inertia, joint_damping, wheel_damping, joint_limit=0.0, limit_stiffness=0.0,
                  limit_damping=0.0, stall_torque=math.inf, inverse_no_load_speed=0.0, torque_limit=math.inf,
-                 wheel_grip=None) -> tuple:
+                 wheel_grip=None, rotor_inertia=None) -> tuple:
     """The ``model`` argument of the kernels (see :class:`KernelModel`): its fields
     as a plain tuple, arrays as float64 C-contiguous (the given arrays themselves
     when they already are) and scalars as Python floats, so that every caller
     reuses one compiled (and cached) specialisation. The defaults: no joint limits, ideal torque sources,
-    unlimited grip."""
+    unlimited grip, massless rotors."""
     def array(a):
         return np.ascontiguousarray(a, dtype=np.float64)
 
     return tuple(KernelModel(array(mass), array(half_length), array(inertia), array(joint_damping),
                              array(wheel_damping), float(joint_limit), float(limit_stiffness), float(limit_damping),
                              float(stall_torque), float(inverse_no_load_speed), float(torque_limit),
-                             array(np.empty(0) if wheel_grip is None else wheel_grip)))
+                             array(np.empty(0) if wheel_grip is None else wheel_grip),
+                             array(np.empty(0) if rotor_inertia is None else rotor_inertia)))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -154,9 +158,11 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
     alone, so that the caller can add them at another scale (eq. 8 is linear in the torques).
     pm = sum_k |A_k phidot_k| (W): the motors' absolute power before any scale (scale >= 0 multiplies it)."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model[:11]
+    rotor = model[12]
     n = m.shape[0]
     inv_room = inverse_room(limit)
     motor = t_max < math.inf
+    geared = rotor.shape[0] > 0
     # channel values of link k: dV/du1, dV/du2, V, Vb and domega/du1, domega/du2, omega, omegab
     a1 = 1.0
     a2 = 0.0
@@ -218,6 +224,17 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
         phidot = nW - W
         nVb -= h[k + 1] * nW * phidot
         nWb += nV * phidot * inv_hn
+        if geared:  # the rotor's kinetic energy 1/2 J phidot^2 with phidot = d . u: J d d^T in eq. 9's M, and
+            # its bias J (d . u)' = J (omegab_{k+1} - omegab_k) on the right of eq. 8, as eq. 10's for a link
+            jr = rotor[k]
+            d1 = nb1 - b1
+            d2 = nb2 - b2
+            M00 += jr * d1 * d1
+            M01 += jr * d1 * d2
+            M11 += jr * d2 * d2
+            jb = jr * (nWb - Wb)
+            r0 -= jb * d1
+            r1 -= jb * d2
         # eq. 11: joint k acts +T on link k+1, -T on link k
         T = torques[k]
         if motor:  # the command clipped to the motor's torque-speed band and current limit
@@ -261,6 +278,18 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def rotor_reaction(links, j, jr, du0, du1, bias):
+    """J_r phiddot_j (N m): the torque joint j's rotor (reflected inertia jr, kg m^2) takes from its motor to
+    turn itself, at udot = (du0, du1), from the channels :func:`_kane_sweep` recorded for links j and j+1
+    (phiddot_j = d . udot + omegab_{j+1} - omegab_j, d = the partial rates b_{j+1} - b_j); the links get the
+    joint's torque minus it. ``bias`` 1 includes the bias acceleration, 0 leaves it out (the share of a
+    torque-driven part of udot)."""
+    d1 = links[j + 1, 4] - links[j, 4]
+    d2 = links[j + 1, 5] - links[j, 5]
+    return jr * (d1 * du0 + d2 * du1 + bias * (links[j + 1, 7] - links[j, 7]))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def grip_room(lam0, lamg, grip):
     """The largest traction scale s >= 0 that keeps wheel k's lateral force lam0 + s lamg (N) within
     max(grip, |lam0|) (N): the cone when the torques alone would leave it, no further out than the
@@ -294,6 +323,8 @@ def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0
     m, h, inertia = model[0], model[1], model[2]
     c_wheel = model[4]
     grip = model[11]
+    rotor = model[12]
+    geared = rotor.shape[0] > 0
     n = m.shape[0]
     power, M00, M01, M11, ra0, ra1, pa, r0, r1, pm = _kane_sweep(model, q, u, torques, dq, du, links, True, 0.0, True)
     det = M00 * M11 - M01 * M01
@@ -321,6 +352,13 @@ def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0
         P_out = links[k, 8] if k < n - 1 else 0.0
         A_in = links[k - 1, 11] if k > 0 else 0.0
         A_out = links[k, 11] if k < n - 1 else 0.0
+        if geared:  # what the rotors take of the joints' torques, split as the torques are (lambda_0, G A)
+            if k > 0:
+                P_in -= rotor_reaction(links, k - 1, rotor[k - 1], du0, du1, 1.0)
+                A_in -= rotor_reaction(links, k - 1, rotor[k - 1], g0, g1, 0.0)
+            if k < n - 1:
+                P_out -= rotor_reaction(links, k, rotor[k], du0, du1, 1.0)
+                A_out -= rotor_reaction(links, k, rotor[k], g0, g1, 0.0)
         mVW = m[k] * V * W
         lam0 = (inertia[k] * alpha - P_in + P_out) / h[k] - 2.0 * Fp + mVW
         lamg = (inertia[k] * alpha_g - A_in + A_out) / h[k] - 2.0 * Gp
@@ -361,6 +399,8 @@ def wheel_lateral_forces(model, q, u, torques, links, dq, du, out):
         return traction_derivatives(model, q, u, torques, dq, du, links, out)[1]
     m, h, inertia = model[0], model[1], model[2]
     c_wheel = model[4]
+    rotor = model[12]
+    geared = rotor.shape[0] > 0
     n = m.shape[0]
     _kane_sweep(model, q, u, torques, dq, du, links, True, 1.0, False)
     # F_k, the pin force of link k+1 on link k (N), in link k's frame (along e_k, along e_k_perp):
@@ -374,6 +414,11 @@ def wheel_lateral_forces(model, q, u, torques, links, dq, du, out):
         alpha = links[k, 4] * du[0] + links[k, 5] * du[1] + links[k, 7]
         T_in = links[k - 1, 8] if k > 0 else 0.0
         T_out = links[k, 8] if k < n - 1 else 0.0
+        if geared:  # the rotors take J_r phiddot of the joints' torques
+            if k > 0:
+                T_in -= rotor_reaction(links, k - 1, rotor[k - 1], du[0], du[1], 1.0)
+            if k < n - 1:
+                T_out -= rotor_reaction(links, k, rotor[k], du[0], du[1], 1.0)
         lam = (inertia[k] * alpha - T_in + T_out) / h[k] - 2.0 * Fp + m[k] * V * W
         out[k] = lam
         # Newton: F_{k-1} = F_k + f_k e_k + lambda_k e_perp - m_k (Vdot_k e_k + V_k omega_k e_perp), in frame k
@@ -487,8 +532,9 @@ def rk4_step_batch(model, q, u, torques, dt, n_substeps, work):
 
 @njit(cache=True, nogil=True, inline="always")
 def _paper_model(m, h, inertia, c_joint, c_wheel):
-    """The KernelModel tuple of the paper's model: no joint limits, ideal torque sources, unlimited grip."""
-    return (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf, np.empty(0))
+    """The KernelModel tuple of the paper's model: no joint limits, ideal torque sources, unlimited grip,
+    massless rotors."""
+    return (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf, np.empty(0), np.empty(0))
 
 
 @njit(cache=True, nogil=True)
@@ -724,9 +770,10 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
     singular or NaN state gives inf/NaN (caught by the caller's finite check)
     instead of an exception, and keeps the loops free of exits.
     """
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip, rotor = model
     n = m.shape[0]
     motor = t_max < math.inf
+    geared = rotor.shape[0] > 0
     traction = grip.shape[0] > 0  # finite grip: stage 1 sets the substep's traction scale (traction_derivatives)
     last = stage == 4
     c = dt if stage == 3 else 0.5 * dt
@@ -787,6 +834,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
         hn = h[k + 1] if joint else 1.0
         inv_hn = 1.0 / hn
         cjk = c_joint[k] if joint else 0.0
+        jr = rotor[k] if joint and geared else 0.0
         for l in range(lanes):
             a1 = s[o + _B_A1 + l]
             a2 = s[o + _B_A2 + l]
@@ -833,6 +881,15 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
                 phidot = nW - W
                 nVb -= hn * nW * phidot
                 nWb += nV * phidot * inv_hn
+                if geared:  # the rotor's inertia on phi_k, as in _kane_sweep
+                    d1 = nb1 - b1
+                    d2 = nb2 - b2
+                    M00 += jr * d1 * d1
+                    M01 += jr * d1 * d2
+                    M11 += jr * d2 * d2
+                    jb = jr * (nWb - Wb)
+                    r0 -= jb * d1
+                    r1 -= jb * d2
                 # eq. 11: joint k acts +T on link k+1, -T on link k; barrier beyond |phi| > limit
                 T = s[o + _B_TQ + l]
                 if motor:  # the command clipped to the motor's torque-speed band and current limit
@@ -886,7 +943,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
                     s[p + _B_PA + l] = s[o + _B_PA + l]
     if first:
         if traction:  # the scale; r and power of block n become those at the scale
-            _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes)
+            _traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, lanes)
     # eq. 8 solved for udot (2x2), then the update of u and of the work
     o = lane_block(n)
     for l in range(lanes):
@@ -934,13 +991,14 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes):
+def _traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, lanes):
     """The traction scale of :func:`traction_derivatives` for every lane, after a stage-1 sweep at
     scale 0 that kept the motors' share apart (rows B_TA, B_TP, B_C, B_S, B_RA0, B_RA1, B_PA):
     the backward sweep from link n to 1 carries udot at scale 0, the motors' udot, the two pin
     forces and the least room in block rows; then row H_SCALE gets the scale, and block n's r and
     power become those at the scale. The same operations in the same order as the per-snake kernel."""
     n = m.shape[0]
+    geared = rotor.shape[0] > 0
     o = lane_block(n)
     for l in range(lanes):
         M00 = s[o + _B_M00 + l]
@@ -971,6 +1029,8 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes):
         hk = h[k]
         cwk = c_wheel[k]
         gk = grip[k]
+        jr_in = rotor[k - 1] if geared and inner else 0.0
+        jr_out = rotor[k] if geared and outer else 0.0
         for l in range(lanes):
             du0 = s[x + _B_DP0 + l]
             du1 = s[x + _B_DP1 + l]
@@ -994,6 +1054,20 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, s, lanes):
             P_out = s[o + _B_TP + l] if outer else 0.0
             A_in = s[i + _B_TA + l] if inner else 0.0
             A_out = s[o + _B_TA + l] if outer else 0.0
+            if geared:  # the rotors' share, as rotor_reaction in traction_derivatives; selected, since the
+                # blocks beyond the joints (the header for k = 0, block n) hold no channels
+                d1 = s[o + _B_B1 + l] - s[i + _B_B1 + l]
+                d2 = s[o + _B_B2 + l] - s[i + _B_B2 + l]
+                rp = jr_in * (d1 * du0 + d2 * du1 + (s[o + _B_WB + l] - s[i + _B_WB + l]))
+                ra = jr_in * (d1 * g0 + d2 * g1)
+                P_in = P_in - rp if inner else P_in
+                A_in = A_in - ra if inner else A_in
+                d1 = s[x + _B_B1 + l] - s[o + _B_B1 + l]
+                d2 = s[x + _B_B2 + l] - s[o + _B_B2 + l]
+                rp = jr_out * (d1 * du0 + d2 * du1 + (s[x + _B_WB + l] - s[o + _B_WB + l]))
+                ra = jr_out * (d1 * g0 + d2 * g1)
+                P_out = P_out - rp if outer else P_out
+                A_out = A_out - ra if outer else A_out
             Fa = s[x + _B_FA + l]
             Fp = s[x + _B_FP + l]
             Ga = s[x + _B_GA + l]

@@ -148,6 +148,20 @@ def bias_vector(model, q, qdot):
     return _bias_from_geometry(m, c, e, link_jacobians(c, e_perp), qdot, n)
 
 
+def rotor_inertia_matrix(rotor_inertia, n, dtype=np.float64):
+    """The joint motors' rotors in eq. 25's M, (n+2, n+2): the rotor of joint k (reflected inertia
+    N^2 J_r,k, kg m^2) adds 1/2 J_r,k (thetadot_{k+1} - thetadot_k)^2 to K, so J_r,k D_k^T D_k with
+    D_k = d phi_k / dq. It depends on no coordinate, so it adds nothing to B (MuJoCo's joint armature)."""
+    M = np.zeros((n + 2, n + 2), dtype=dtype)
+    for k in range(n - 1):
+        jr = rotor_inertia[k]
+        M[k, k] += jr
+        M[k + 1, k + 1] += jr
+        M[k, k + 1] -= jr
+        M[k + 1, k] -= jr
+    return M
+
+
 def _bias_from_geometry(m, c, e, J, qdot, n):
     w2 = qdot[..., :n] * qdot[..., :n]  # thetadot_j^2
     centripetal = -np.sum(c[:, :, None] * (w2[..., None, :, None] * e[..., None, :, :]), axis=-2)  # (..., n, 2)
@@ -243,12 +257,14 @@ def lu_solve(matrix, rhs):
 
 
 # ---------------------------------------------------------------- entry points
-def qddot(model, q, qdot, torques, baumgarte: float = 0.0, with_multipliers: bool = False):
+def qddot(model, q, qdot, torques, baumgarte: float = 0.0, with_multipliers: bool = False, rotor_inertia=None):
     """Coordinate accelerations (..., n+2) from eq. 27, for any (q, qdot).
 
     ``baumgarte`` (1/s) adds -beta A qdot to the constraint row, pulling a
     drifted velocity back onto A qdot = 0 (0 = the paper's eq. 27).
     With ``with_multipliers`` also returns lambda (..., n) (N).
+    ``rotor_inertia`` (n-1,) (kg m^2): the joint motors' reflected rotor inertias
+    (:func:`rotor_inertia_matrix`); None: massless rotors (the paper).
     """
     m, h, inertia, _, _ = model.parameters(qdot.dtype)
     n = model.n_links
@@ -258,12 +274,17 @@ def qddot(model, q, qdot, torques, baumgarte: float = 0.0, with_multipliers: boo
     batch = np.broadcast_shapes(q.shape[:-1], qdot.shape[:-1])
     M = _inertia_from_jacobians(m, inertia, J, batch, qdot.dtype)
     B = _bias_from_geometry(m, c, e, J, qdot, n)
-    return solve_multipliers(model, q, qdot, torques, M, B, c, e, e_perp, J, baumgarte, with_multipliers)
+    return solve_multipliers(model, q, qdot, torques, M, B, c, e, e_perp, J, baumgarte, with_multipliers,
+                             rotor_inertia)
 
 
-def solve_multipliers(model, q, qdot, torques, M, B, c, e, e_perp, J, baumgarte=0.0, with_multipliers=False):
-    """Shared constraint treatment (eqs. 26-27) for Lagrange and Newton-Euler."""
+def solve_multipliers(model, q, qdot, torques, M, B, c, e, e_perp, J, baumgarte=0.0, with_multipliers=False,
+                      rotor_inertia=None):
+    """Shared constraint treatment (eqs. 26-27) for Lagrange and Newton-Euler (the rotors' inertia, if
+    given, added to M here)."""
     n = model.n_links
+    if rotor_inertia is not None:
+        M = M + rotor_inertia_matrix(np.asarray(rotor_inertia, dtype=qdot.dtype), n, qdot.dtype)
     A = constraint_matrix(c, e_perp)
     Adot = constraint_matrix_rate(c, e, e_perp, qdot, n)
     Q = generalized_forces(model, q, qdot, torques, e, J)

@@ -100,8 +100,9 @@ def _recursive_bias(m, h, c, e, e_perp, qdot):
     return np.concatenate([B_theta, F[..., 0, :]], axis=-1)
 
 
-def qddot(model, q, qdot, torques, baumgarte: float = 0.0, with_multipliers: bool = False):
-    """Coordinate accelerations (..., n+2) from eq. 27 with Walker-Orin's M and B."""
+def qddot(model, q, qdot, torques, baumgarte: float = 0.0, with_multipliers: bool = False, rotor_inertia=None):
+    """Coordinate accelerations (..., n+2) from eq. 27 with Walker-Orin's M and B (``rotor_inertia``: as
+    :func:`snake_env.dynamics.lagrange.qddot`'s)."""
     m, h, inertia, _, _ = model.parameters(qdot.dtype)
     n = model.n_links
     e, e_perp = unit_vectors(q[..., :n])
@@ -110,7 +111,8 @@ def qddot(model, q, qdot, torques, baumgarte: float = 0.0, with_multipliers: boo
     M = _composite_inertia(m, inertia, c, e_perp, batch, qdot.dtype)
     B = _recursive_bias(m, h, c, e, e_perp, qdot)
     # J is only needed for the wheel-damping loads; generalized_forces builds it then
-    return solve_multipliers(model, q, qdot, torques, M, B, c, e, e_perp, None, baumgarte, with_multipliers)
+    return solve_multipliers(model, q, qdot, torques, M, B, c, e, e_perp, None, baumgarte, with_multipliers,
+                             rotor_inertia)
 
 
 def udot(model, q, u, torques):

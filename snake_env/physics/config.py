@@ -135,6 +135,10 @@ class PhysicsConfig:
                                           doc="joint rate at which the driving torque falls to 0 (None: the preset's)")
     torque_limit: float | None = setting(None, "N m", "optional_real", minimum=0.0,
                                          doc="current limit as a joint torque (None: the preset's)")
+    rotor_inertia: float = setting(0.0, "kg m^2", minimum=0.0, strict=False,
+                                   doc="each joint motor's reflected rotor inertia N^2 J_r (gear ratio N; MuJoCo's "
+                                       "joint armature): the spinning rotor's kinetic energy 1/2 N^2 J_r phidot^2 is "
+                                       "in the dynamics and the energy check; 0: massless rotors (every preset)")
     torque_lag: float = setting(0.0, "s", minimum=0.0, strict=False,
                                 doc="time constant of the first-order lag from command to motor torque (the current "
                                     "loop; MuJoCo's dyntype 'filter'); 0: instant (physics.actuator_response)")
@@ -165,13 +169,14 @@ class PhysicsConfig:
                 conflicts.append("actuator")
             if self.wheel_friction not in (None, DEFAULT_WHEEL_FRICTION):
                 conflicts.append("wheel_friction")
-            conflicts += [name for name in ("torque_lag", "control_latency") if getattr(self, name) != 0.0]
+            conflicts += [name for name in ("torque_lag", "control_latency", "rotor_inertia")
+                          if getattr(self, name) != 0.0]
             if self.randomize not in (None, False):
                 conflicts.append("randomize")
             if conflicts:
                 raise ValueError(f"paper_model=True fixes joint_damping=0, wheel_damping=0, joint_limit=None, "
-                                 f"actuator='ideal', wheel_friction=None, torque_lag=0, control_latency=0 and "
-                                 f"randomize=None; do not also pass {', '.join(conflicts)}")
+                                 f"actuator='ideal', wheel_friction=None, torque_lag=0, control_latency=0, "
+                                 f"rotor_inertia=0 and randomize=None; do not also pass {', '.join(conflicts)}")
             for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None),
                                 ("actuator", "ideal"), ("wheel_friction", None)):
                 object.__setattr__(self, name, value)
@@ -234,6 +239,8 @@ class PhysicsConfig:
             error_tolerance=self.error_tolerance if refined else math.inf,
             max_refinements=self.max_refinements if refined else 0,
             wheel_grip=None if self.wheel_friction is None else self.grip(),
+            # massless rotors leave the kernels' rotor terms out altogether (the previous physics bit for bit)
+            rotor_inertia=np.full(self.n_links - 1, float(self.rotor_inertia)) if self.rotor_inertia > 0 else None,
             **({} if self._motor is None else dict(
                 stall_torque=self._motor.stall_torque, torque_limit=self._motor.torque_limit,
                 inverse_no_load_speed=1.0 / self._motor.no_load_speed if self._motor.no_load_speed > 0 else 0.0)))
@@ -268,9 +275,11 @@ def stiffest_rates(params: PhysicsParams, max_torque: float) -> dict[str, float]
     limit dampers (rate c / I_j), the limit spring (sqrt(k / I_j)) and the torque
     (sqrt(max_torque / (I_j * 1 rad)): the rate at which a joint from rest turns a
     radian); the wheel dampers act on the link masses (c / m); a motor's back-EMF slope
-    tau_s / omega_0 (N m s/rad) is a joint damper too.
+    tau_s / omega_0 (N m s/rad) is a joint damper too. A motor's reflected rotor inertia adds to I_j.
     """
     inertia_j = float(np.min(params.inertia)) / 2.0
+    if params.rotor_inertia is not None:  # a rotor turns with its joint: its inertia adds to the joint's
+        inertia_j += float(np.min(params.rotor_inertia))
     joint_damping = float(np.max(params.joint_damping, initial=0.0))
     rates = {
         "joint damping": joint_damping / inertia_j,

@@ -153,6 +153,8 @@ class PhysicsParams:
             (:mod:`snake_env.dynamics.motor`); torque_limit = inf: ideal torque sources.
         wheel_grip (N): mu m_k g of every wheel (n,), the traction limit of
             ``compiled.traction_derivatives``; None: unlimited grip (the paper's no-slip wheels).
+        rotor_inertia (kg m^2): each joint motor's reflected rotor inertia N^2 J_r (n-1,); None: massless
+            rotors (``compiled.KernelModel``).
 
     The kernels take these as two arguments, :attr:`kernel_model` (``compiled.KernelModel``)
     and :attr:`kernel_settings` (:class:`StepSettings`), made on first use.
@@ -178,6 +180,7 @@ class PhysicsParams:
     inverse_no_load_speed: float = 0.0
     torque_limit: float = math.inf
     wheel_grip: np.ndarray | None = None
+    rotor_inertia: np.ndarray | None = None
 
     @property
     def n_links(self) -> int:
@@ -189,7 +192,7 @@ class PhysicsParams:
         return compiled.kernel_model(self.mass, self.half_length, self.inertia, self.joint_damping,
                                      self.wheel_damping, self.joint_limit, self.limit_stiffness, self.limit_damping,
                                      self.stall_torque, self.inverse_no_load_speed, self.torque_limit,
-                                     self.wheel_grip)
+                                     self.wheel_grip, self.rotor_inertia)
 
     @cached_property
     def kernel_settings(self) -> tuple:
@@ -263,6 +266,8 @@ def _observe(model, q, u, include_position, cx, cy, obs):
     Link speeds V_k and rates omega_k follow eqs. 6-7 from u = (V_1, thetadot_1).
     """
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    rotor = model[12]
+    geared = rotor.shape[0] > 0
     n = m.shape[0]
     j = 0
     if include_position:
@@ -287,10 +292,13 @@ def _observe(model, q, u, include_position, cx, cy, obs):
         S, C = _sincos(phi)
         nV = V * C + W * h[k] * S  # eq. 6
         nW = (V * S - W * h[k] * C) / h[k + 1]  # eq. 7
-        obs[j + k] = nW - W  # joint rate phidot_k
+        phidot = nW - W
+        obs[j + k] = phidot  # joint rate phidot_k
         V = nV
         W = nW
         kinetic += 0.5 * (m[k + 1] * V * V + inertia[k + 1] * W * W)
+        if geared:  # the rotor's 1/2 N^2 J_r phidot^2 (summed as _observe_lanes sums it)
+            kinetic += 0.5 * rotor[k] * (phidot * phidot)
     return kinetic
 
 
@@ -299,6 +307,8 @@ def _measures(model, q, u):
     """(kinetic energy (J), fastest rate (rad/s), largest wrapped |phi_k| (rad)) of one state:
     the quantities of the step check. Rates are every link's omega_k and joint's phidot_k (eqs. 6-7)."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    rotor = model[12]
+    geared = rotor.shape[0] > 0
     n = m.shape[0]
     V = u[0]
     W = u[1]
@@ -312,9 +322,12 @@ def _measures(model, q, u):
         nW = (V * S - W * h[k] * C) / h[k + 1]  # eq. 7
         rate = max(rate, abs(nW), abs(nW - W))
         fold = max(fold, abs(_wrap(phi)))
+        phidot = nW - W
         V = nV
         W = nW
         kinetic += 0.5 * (m[k + 1] * V * V + inertia[k + 1] * W * W)
+        if geared:  # the rotor's 1/2 N^2 J_r phidot^2
+            kinetic += 0.5 * rotor[k] * (phidot * phidot)
     return kinetic, rate, fold
 
 
@@ -493,6 +506,8 @@ def _observe_lanes(model, s, nl):
     cos/sin of theta_1, the kinetic energy (J) and the check's fastest rate (rad/s)
     and largest |phi_k| (rad) of :func:`_measures` (header rows)."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    rotor = model[12]
+    geared = rotor.shape[0] > 0
     n = m.shape[0]
     lanes = _U(nl)
     b0 = compiled.lane_block(0)
@@ -514,6 +529,7 @@ def _observe_lanes(model, s, nl):
         hn = h[k + 1]
         mn = m[k + 1]
         In = inertia[k + 1]
+        jr = rotor[k] if geared else 0.0
         for l in range(lanes):
             phi = s[p + _B_Q + l] - s[o + _B_Q + l]
             S, C = compiled.sincos(phi)
@@ -526,7 +542,10 @@ def _observe_lanes(model, s, nl):
             s[o + _B_PHIDOT + l] = nW - W
             s[p + _B_V + l] = nV
             s[p + _B_W + l] = nW
-            s[p + _B_K + l] = s[o + _B_K + l] + 0.5 * (mn * nV * nV + In * nW * nW)
+            kin = s[o + _B_K + l] + 0.5 * (mn * nV * nV + In * nW * nW)
+            if geared:  # the rotor's 1/2 N^2 J_r phidot^2 (compiled.KernelModel.rotor_inertia)
+                kin += 0.5 * jr * ((nW - W) * (nW - W))
+            s[p + _B_K + l] = kin
             s[_H_RATE + l] = max(s[_H_RATE + l], abs(nW), abs(nW - W))
             s[_H_FOLD + l] = max(s[_H_FOLD + l], abs(wrapped))
     o = compiled.lane_block(n - 1)
