@@ -224,17 +224,6 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
         phidot = nW - W
         nVb -= h[k + 1] * nW * phidot
         nWb += nV * phidot * inv_hn
-        if geared:  # the rotor's kinetic energy 1/2 J phidot^2 with phidot = d . u: J d d^T in eq. 9's M, and
-            # its bias J (d . u)' = J (omegab_{k+1} - omegab_k) on the right of eq. 8, as eq. 10's for a link
-            jr = rotor[k]
-            d1 = nb1 - b1
-            d2 = nb2 - b2
-            M00 += jr * d1 * d1
-            M01 += jr * d1 * d2
-            M11 += jr * d2 * d2
-            jb = jr * (nWb - Wb)
-            r0 -= jb * d1
-            r1 -= jb * d2
         # eq. 11: joint k acts +T on link k+1, -T on link k
         T = torques[k]
         if motor:  # the command clipped to the motor's torque-speed band and current limit
@@ -253,6 +242,18 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
         r0 += T * (nb1 - b1)
         r1 += T * (nb2 - b2)
         power += T * phidot
+        if geared:  # the rotor's kinetic energy 1/2 J phidot^2 with phidot = d . u: J d d^T in eq. 9's M, and
+            # its bias J (d . u)' - J d . udot = J (omegab_{k+1} - omegab_k) on the right of eq. 8, as eq. 10's
+            # for a link (the order of the lane kernel's, which adds it in a loop of its own)
+            jr = rotor[k]
+            d1 = nb1 - b1
+            d2 = nb2 - b2
+            M00 += jr * d1 * d1
+            M01 += jr * d1 * d2
+            M11 += jr * d2 * d2
+            jb = jr * (nWb - Wb)
+            r0 -= jb * d1
+            r1 -= jb * d2
         if split:
             ra0 += A * (nb1 - b1)
             ra1 += A * (nb2 - b2)
@@ -278,15 +279,12 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def rotor_reaction(links, j, jr, du0, du1, bias):
-    """J_r phiddot_j (N m): the torque joint j's rotor (reflected inertia jr, kg m^2) takes from its motor to
-    turn itself, at udot = (du0, du1), from the channels :func:`_kane_sweep` recorded for links j and j+1
-    (phiddot_j = d . udot + omegab_{j+1} - omegab_j, d = the partial rates b_{j+1} - b_j); the links get the
-    joint's torque minus it. ``bias`` 1 includes the bias acceleration, 0 leaves it out (the share of a
-    torque-driven part of udot)."""
-    d1 = links[j + 1, 4] - links[j, 4]
-    d2 = links[j + 1, 5] - links[j, 5]
-    return jr * (d1 * du0 + d2 * du1 + bias * (links[j + 1, 7] - links[j, 7]))
+def joint_rate_partials(links, j):
+    """(d1, d2, phib) of joint j from the channels :func:`_kane_sweep` recorded for links j and j+1: its
+    acceleration is phiddot_j = d1 udot_1 + d2 udot_2 + phib (d = b_{j+1} - b_j, the partial rates;
+    phib = omegab_{j+1} - omegab_j, the bias). A rotor of reflected inertia J_r takes J_r phiddot_j of
+    the joint's torque to turn itself; the links get the rest."""
+    return links[j + 1, 4] - links[j, 4], links[j + 1, 5] - links[j, 5], links[j + 1, 7] - links[j, 7]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -354,11 +352,13 @@ def traction_derivatives(model, q, u, torques, dq, du, links, lam, old_scale=1.0
         A_out = links[k, 11] if k < n - 1 else 0.0
         if geared:  # what the rotors take of the joints' torques, split as the torques are (lambda_0, G A)
             if k > 0:
-                P_in -= rotor_reaction(links, k - 1, rotor[k - 1], du0, du1, 1.0)
-                A_in -= rotor_reaction(links, k - 1, rotor[k - 1], g0, g1, 0.0)
+                d1, d2, phib = joint_rate_partials(links, k - 1)
+                P_in -= rotor[k - 1] * (d1 * du0 + d2 * du1 + phib)
+                A_in -= rotor[k - 1] * (d1 * g0 + d2 * g1)
             if k < n - 1:
-                P_out -= rotor_reaction(links, k, rotor[k], du0, du1, 1.0)
-                A_out -= rotor_reaction(links, k, rotor[k], g0, g1, 0.0)
+                d1, d2, phib = joint_rate_partials(links, k)
+                P_out -= rotor[k] * (d1 * du0 + d2 * du1 + phib)
+                A_out -= rotor[k] * (d1 * g0 + d2 * g1)
         mVW = m[k] * V * W
         lam0 = (inertia[k] * alpha - P_in + P_out) / h[k] - 2.0 * Fp + mVW
         lamg = (inertia[k] * alpha_g - A_in + A_out) / h[k] - 2.0 * Gp
@@ -416,9 +416,11 @@ def wheel_lateral_forces(model, q, u, torques, links, dq, du, out):
         T_out = links[k, 8] if k < n - 1 else 0.0
         if geared:  # the rotors take J_r phiddot of the joints' torques
             if k > 0:
-                T_in -= rotor_reaction(links, k - 1, rotor[k - 1], du[0], du[1], 1.0)
+                d1, d2, phib = joint_rate_partials(links, k - 1)
+                T_in -= rotor[k - 1] * (d1 * du[0] + d2 * du[1] + phib)
             if k < n - 1:
-                T_out -= rotor_reaction(links, k, rotor[k], du[0], du[1], 1.0)
+                d1, d2, phib = joint_rate_partials(links, k)
+                T_out -= rotor[k] * (d1 * du[0] + d2 * du[1] + phib)
         lam = (inertia[k] * alpha - T_in + T_out) / h[k] - 2.0 * Fp + m[k] * V * W
         out[k] = lam
         # Newton: F_{k-1} = F_k + f_k e_k + lambda_k e_perp - m_k (Vdot_k e_k + V_k omega_k e_perp), in frame k
@@ -881,15 +883,6 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
                 phidot = nW - W
                 nVb -= hn * nW * phidot
                 nWb += nV * phidot * inv_hn
-                if geared:  # the rotor's inertia on phi_k, as in _kane_sweep
-                    d1 = nb1 - b1
-                    d2 = nb2 - b2
-                    M00 += jr * d1 * d1
-                    M01 += jr * d1 * d2
-                    M11 += jr * d2 * d2
-                    jb = jr * (nWb - Wb)
-                    r0 -= jb * d1
-                    r1 -= jb * d2
                 # eq. 11: joint k acts +T on link k+1, -T on link k; barrier beyond |phi| > limit
                 T = s[o + _B_TQ + l]
                 if motor:  # the command clipped to the motor's torque-speed band and current limit
@@ -941,6 +934,17 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
                     s[p + _B_RA0 + l] = s[o + _B_RA0 + l]
                     s[p + _B_RA1 + l] = s[o + _B_RA1 + l]
                     s[p + _B_PA + l] = s[o + _B_PA + l]
+        if joint and geared:  # the rotor's inertia on phi_k, as in _kane_sweep: a lane loop of its own, so that
+            # the loop above carries no branch for it when the rotors are massless
+            for l in range(lanes):
+                d1 = s[p + _B_B1 + l] - s[o + _B_B1 + l]
+                d2 = s[p + _B_B2 + l] - s[o + _B_B2 + l]
+                jb = jr * (s[p + _B_WB + l] - s[o + _B_WB + l])
+                s[p + _B_M00 + l] = s[p + _B_M00 + l] + jr * d1 * d1
+                s[p + _B_M01 + l] = s[p + _B_M01 + l] + jr * d1 * d2
+                s[p + _B_M11 + l] = s[p + _B_M11 + l] + jr * d2 * d2
+                s[p + _B_R0 + l] = s[p + _B_R0 + l] - jb * d1
+                s[p + _B_R1 + l] = s[p + _B_R1 + l] - jb * d2
     if first:
         if traction:  # the scale; r and power of block n become those at the scale
             _traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, lanes)
@@ -1016,6 +1020,22 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, lanes):
         s[o + _B_GA + l] = 0.0
         s[o + _B_GP + l] = 0.0
         s[o + _B_ROOM + l] = 1.0
+    if geared:  # the rotors take J_r phiddot of the joints' torques (traction_derivatives): the passive and the
+        # motors' torques in rows TP, TA become what reaches the links, at udot of scale 0 and the motors' udot
+        for j in range(n - 1):
+            oj = lane_block(j)
+            pj = oj + _NEXT
+            jr = rotor[j]
+            for l in range(lanes):
+                d1 = s[pj + _B_B1 + l] - s[oj + _B_B1 + l]
+                d2 = s[pj + _B_B2 + l] - s[oj + _B_B2 + l]
+                phib = s[pj + _B_WB + l] - s[oj + _B_WB + l]
+                du0 = s[o + _B_DP0 + l]
+                du1 = s[o + _B_DP1 + l]
+                g0 = s[o + _B_G0 + l]
+                g1 = s[o + _B_G1 + l]
+                s[oj + _B_TP + l] = s[oj + _B_TP + l] - jr * (d1 * du0 + d2 * du1 + phib)
+                s[oj + _B_TA + l] = s[oj + _B_TA + l] - jr * (d1 * g0 + d2 * g1)
     for k in range(n - 1, -1, -1):
         o = lane_block(k)
         x = o + _NEXT  # link k+1's block: the carried values
@@ -1029,8 +1049,6 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, lanes):
         hk = h[k]
         cwk = c_wheel[k]
         gk = grip[k]
-        jr_in = rotor[k - 1] if geared and inner else 0.0
-        jr_out = rotor[k] if geared and outer else 0.0
         for l in range(lanes):
             du0 = s[x + _B_DP0 + l]
             du1 = s[x + _B_DP1 + l]
@@ -1054,20 +1072,6 @@ def _traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, lanes):
             P_out = s[o + _B_TP + l] if outer else 0.0
             A_in = s[i + _B_TA + l] if inner else 0.0
             A_out = s[o + _B_TA + l] if outer else 0.0
-            if geared:  # the rotors' share, as rotor_reaction in traction_derivatives; selected, since the
-                # blocks beyond the joints (the header for k = 0, block n) hold no channels
-                d1 = s[o + _B_B1 + l] - s[i + _B_B1 + l]
-                d2 = s[o + _B_B2 + l] - s[i + _B_B2 + l]
-                rp = jr_in * (d1 * du0 + d2 * du1 + (s[o + _B_WB + l] - s[i + _B_WB + l]))
-                ra = jr_in * (d1 * g0 + d2 * g1)
-                P_in = P_in - rp if inner else P_in
-                A_in = A_in - ra if inner else A_in
-                d1 = s[x + _B_B1 + l] - s[o + _B_B1 + l]
-                d2 = s[x + _B_B2 + l] - s[o + _B_B2 + l]
-                rp = jr_out * (d1 * du0 + d2 * du1 + (s[x + _B_WB + l] - s[o + _B_WB + l]))
-                ra = jr_out * (d1 * g0 + d2 * g1)
-                P_out = P_out - rp if outer else P_out
-                A_out = A_out - ra if outer else A_out
             Fa = s[x + _B_FA + l]
             Fp = s[x + _B_FP + l]
             Ga = s[x + _B_GA + l]
