@@ -17,15 +17,9 @@ from snake_env.dynamics import compiled, lagrange, newton_euler
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig, stepping
 
+from .test_traction import _random_state
+
 ROTOR = 0.005  # kg m^2: the order of the Dynamixel MX armature of MuJoCo Menagerie's dynamixel_2r
-
-
-def _random_state(rng, n, speed=1.0):
-    q = np.empty(n + 2)
-    q[0] = rng.uniform(-math.pi, math.pi)
-    q[1:n] = q[0] + np.cumsum(rng.uniform(-1.0, 1.0, n - 1))
-    q[n:] = rng.uniform(-1.0, 1.0, 2)
-    return q, rng.normal(0.0, speed, 2)
 
 
 def _built(n, **kwargs):
