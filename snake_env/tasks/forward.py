@@ -131,7 +131,7 @@ class ForwardTask(Task):
     ## Info
     Every step (every task): `x_position`, `y_position`, `distance_from_origin`
     (m, whole CM), `x_velocity`, `y_velocity` (m/s, whole CM over the step),
-    `kinetic_energy` (J, eq. 22), `power` (W, mean power of all loads over the
+    `kinetic_energy` (J, eq. 22, with the rotors' 1/2 N^2 J_r phidot^2 if any), `power` (W, mean power of all loads over the
     step: actuators, damping, limits; dK/dt), `actuator_power` (W, the step's
     mean of sum_k |s A_k phidot_k|: the torque each motor delivers, after its
     torque-speed band, current limit and the traction scale s, times its joint's
