@@ -18,9 +18,11 @@ randomization, and the same draws every time. The drawn values are in the reset 
 | ``wheel_damping`` | factor | 0.5-1.5 | x nominal | rolling resistance is poorly known; the same +-50 % as the inertia |
 | ``wheel_friction`` | value | 0.5-1.25 | mu | Tan et al. 2018, Table I: lateral friction 0.5-1.25 |
 | ``control_latency`` | value | 0-0.04 | s | Tan et al. 2018, Table I: control latency 0-40 ms; drawn in whole sim_dt substeps, at most one env step |
+| ``rotor_inertia`` | factor | 0.5-1.5 | x nominal | no servo datasheet gives it (it is identified, as MuJoCo Menagerie's Dynamixel armature): the same +-50 % as the inertia |
 
-The motor's constants are drawn only with a DC-motor actuator and ``wheel_friction`` only with finite
-grip: ``randomize=True`` leaves them out otherwise, and naming them is then an error.
+The motor's constants are drawn only with a DC-motor actuator, ``wheel_friction`` only with finite
+grip and ``rotor_inertia`` only with rotors (``rotor_inertia`` > 0): ``randomize=True`` leaves them out
+otherwise, and naming them is then an error.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ RANGES = {
     "wheel_damping": ("factor", 0.5, 1.5),
     "wheel_friction": ("value", 0.5, 1.25),
     "control_latency": ("value", 0.0, 0.04),
+    "rotor_inertia": ("factor", 0.5, 1.5),  # last: a config without rotors draws what it drew before
 }
 PER_LINK = ("mass", "inertia")
 MOTOR = ("stall_torque", "no_load_speed")
@@ -63,9 +66,10 @@ def _pair(name, value):
     return float(value[0]), float(value[1])
 
 
-def resolve(randomize, *, motor: bool, grip: bool, sim_dt: float, frame_skip: int) -> dict[str, tuple[float, float]]:
+def resolve(randomize, *, motor: bool, grip: bool, sim_dt: float, frame_skip: int,
+            rotor: bool = False) -> dict[str, tuple[float, float]]:
     """The ranges ``randomize`` asks for ({} when off); a bad value is a one-line ValueError naming it."""
-    ranges = _resolve(randomize, motor=motor, grip=grip)
+    ranges = _resolve(randomize, motor=motor, grip=grip, rotor=rotor)
     if "control_latency" in ranges:  # whole substeps, at most one env step
         low, high = ranges["control_latency"]
         dt = sim_dt * frame_skip
@@ -76,12 +80,13 @@ def resolve(randomize, *, motor: bool, grip: bool, sim_dt: float, frame_skip: in
     return ranges
 
 
-def _resolve(randomize, *, motor: bool, grip: bool) -> dict[str, tuple[float, float]]:
+def _resolve(randomize, *, motor: bool, grip: bool, rotor: bool) -> dict[str, tuple[float, float]]:
     if randomize is None or randomize is False:
         return {}
     if randomize is True:
         return {name: (low, high) for name, (_, low, high) in RANGES.items()
-                if (motor or name not in MOTOR) and (grip or name != "wheel_friction")}
+                if (motor or name not in MOTOR) and (grip or name != "wheel_friction")
+                and (rotor or name != "rotor_inertia")}
     if not isinstance(randomize, dict) or not randomize:
         raise ValueError(f"randomize must be None, True or a non-empty mapping {{name: [low, high]}} with names "
                          f"from {list(RANGES)}, got {randomize!r}")
@@ -92,6 +97,8 @@ def _resolve(randomize, *, motor: bool, grip: bool) -> dict[str, tuple[float, fl
         raise ValueError("randomize names a motor constant, but actuator='ideal' has none; pick a DC-motor actuator")
     if not grip and "wheel_friction" in randomize:
         raise ValueError("randomize names wheel_friction, but wheel_friction=None (unlimited grip); give a mu")
+    if not rotor and "rotor_inertia" in randomize:
+        raise ValueError("randomize names rotor_inertia, but rotor_inertia=0 (massless rotors); give one (kg m^2)")
     return {name: _pair(name, value) for name, value in randomize.items()}
 
 
@@ -114,8 +121,8 @@ def draw(config, ranges: dict, rng: np.random.Generator) -> tuple[object, dict[s
             changes[name] = np.broadcast_to(np.asarray(getattr(config, name), np.float64), (n,)) * value
         elif name in MOTOR:
             factors[name] = float(value)
-        elif name == "wheel_damping":
-            changes[name] = config.wheel_damping * float(value)
+        elif name in ("wheel_damping", "rotor_inertia"):
+            changes[name] = getattr(config, name) * float(value)
         else:  # wheel_friction
             changes[name] = float(value)
     if factors:  # motor strength scales the stall torque and the current limit alike
@@ -128,9 +135,9 @@ def draw(config, ranges: dict, rng: np.random.Generator) -> tuple[object, dict[s
 
 def stiffest_robot(config, ranges: dict):
     """The drawable robot with the fastest rates (lightest links, strongest and slowest motors, most wheel
-    damping): if RK4 steps it at the config's sim_dt, it steps every robot the ranges can draw."""
+    damping, lightest rotors): if RK4 steps it at the config's sim_dt, it steps every robot the ranges can draw."""
     corner = {"mass": 0, "inertia": 0, "stall_torque": 1, "no_load_speed": 0, "wheel_damping": 1,
-              "wheel_friction": 0, "control_latency": 0}
+              "wheel_friction": 0, "control_latency": 0, "rotor_inertia": 0}
     picks = {name: (low, high)[corner[name]] for name, (low, high) in ranges.items()}
     # a range [v, v] draws v exactly
     return draw(config, {name: (value, value) for name, value in picks.items()}, np.random.default_rng(0))[0]

@@ -169,7 +169,7 @@ class ForwardTask(Task):
     | `rotor_inertia` | 0.0 | kg m^2: each joint motor's reflected rotor inertia N^2 J_r (MuJoCo's armature), its kinetic energy 1/2 N^2 J_r phidot_k^2 in the dynamics and the energy check; 0: massless rotors (every preset) |
     | `torque_lag` | 0.0 | s: time constant of the first-order lag from command to torque (the current loop); 0: instant |
     | `control_latency` | 0.0 | s: delay of each command before it reaches the motor, whole sim_dt substeps, at most dt; 0: none |
-    | `randomize` | None | per-episode domain randomization: True (default ranges) or {name: [low, high]} over mass, inertia, stall_torque, no_load_speed, wheel_damping (factors), wheel_friction, control_latency (values); draws in the reset info as `randomized_<name>` (`snake_env.physics.randomization`) |
+    | `randomize` | None | per-episode domain randomization: True (default ranges) or {name: [low, high]} over mass, inertia, stall_torque, no_load_speed, wheel_damping, rotor_inertia (factors), wheel_friction, control_latency (values); draws in the reset info as `randomized_<name>` (`snake_env.physics.randomization`) |
     | `mass`, `length`, `inertia` | 1.0, 0.2, 0.005 | per-link kg, m, kg m^2 (paper Table II) |
     | `integrator` | "rk4_refined" | "rk4_refined": checked RK4, failing steps refined; "rk4": checked fixed-step RK4 |
     | `energy_tolerance` | 1e-2 | largest relative work-energy residual of an env step |

@@ -86,6 +86,30 @@ def test_off_by_default_and_named_ranges_draw_only_those():
     assert set(drawn(ideal.reset(seed=0)[1])) == {"mass", "inertia", "wheel_damping", "control_latency"}
 
 
+def test_rotor_inertia_is_drawn_only_with_rotors_and_leaves_the_other_draws_alone(rng):
+    """With rotors randomize=True also draws rotor_inertia, within its bounds and after every other draw (so
+    the other draws of a seed are those without rotors); a row is the single env with the drawn rotors."""
+    plain = SnakeEnv(n_links=5, randomize=True).reset(seed=4)[1]
+    geared = SnakeEnv(n_links=5, rotor_inertia=0.004, randomize=True).reset(seed=4)[1]
+    assert set(drawn(geared)) == set(FULL) | {"rotor_inertia"} and set(drawn(plain)) == set(FULL)
+    for name in FULL:
+        np.testing.assert_array_equal(drawn(plain)[name], drawn(geared)[name])
+    vec = SnakeVectorEnv(num_envs=32, n_links=4, rotor_inertia=0.004, randomize={"rotor_inertia": [0.5, 1.5]})
+    _, info = vec.reset(seed=1)
+    factors = info["randomized_rotor_inertia"] / 0.004
+    assert factors.min() >= 0.5 and factors.max() <= 1.5 and factors.max() - factors.min() > 0.5
+    few = SnakeVectorEnv(num_envs=2, n_links=4, rotor_inertia=0.004, randomize={"rotor_inertia": [0.5, 1.5]})
+    _, info = few.reset(seed=1)
+    q, u = few.state
+    rows = []
+    for b in range(2):
+        env = SnakeEnv(n_links=4, rotor_inertia=float(info["randomized_rotor_inertia"][b]))
+        env.reset(seed=0)
+        env.set_state(q[b], u[b])
+        rows.append(env)
+    assert_rows_step_like_singles(few, rows, rng, 10, ["wheel_lateral_force"])
+
+
 def test_autoreset_reports_the_new_robots():
     vec = SnakeVectorEnv(num_envs=2, n_links=4, max_episode_steps=2, randomize={"mass": [0.5, 1.5]})
     _, info = vec.reset(seed=0)
@@ -107,6 +131,7 @@ def test_autoreset_reports_the_new_robots():
     (dict(randomize={"control_latency": [0.012, 0.018]}), "whole number of sim_dt"),
     (dict(actuator="ideal", randomize={"stall_torque": [0.9, 1.1]}), "actuator='ideal' has none"),
     (dict(wheel_friction=None, randomize={"wheel_friction": [0.5, 1.0]}), "wheel_friction=None"),
+    (dict(randomize={"rotor_inertia": [0.5, 1.5]}), "rotor_inertia=0"),
     (dict(paper_model=True, randomize=True), "do not also pass randomize"),
     (dict(sim_dt=0.01, randomize={"inertia": [0.01, 1.0]}), "sim_dt must be in"),
 ])
