@@ -185,7 +185,7 @@ class PhysicsConfig:
                                                             self.torque_limit))
         object.__setattr__(self, "_randomize", resolve_randomize(
             self.randomize, motor=self._motor is not None, grip=self.wheel_friction is not None,
-            sim_dt=float(self.sim_dt), frame_skip=self.frame_skip, rotor=self.rotor_inertia > 0))
+            rotor=self.rotor_inertia > 0, sim_dt=float(self.sim_dt), frame_skip=self.frame_skip))
 
     @property
     def dt(self) -> float:

@@ -66,8 +66,8 @@ def _pair(name, value):
     return float(value[0]), float(value[1])
 
 
-def resolve(randomize, *, motor: bool, grip: bool, sim_dt: float, frame_skip: int,
-            rotor: bool = False) -> dict[str, tuple[float, float]]:
+def resolve(randomize, *, motor: bool, grip: bool, rotor: bool, sim_dt: float,
+            frame_skip: int) -> dict[str, tuple[float, float]]:
     """The ranges ``randomize`` asks for ({} when off); a bad value is a one-line ValueError naming it."""
     ranges = _resolve(randomize, motor=motor, grip=grip, rotor=rotor)
     if "control_latency" in ranges:  # whole substeps, at most one env step
