@@ -318,3 +318,68 @@ class CriticWarmUp(BaseCallback):
 
     def _on_training_end(self) -> None:
         self._set_frozen(False)  # a saved or resumed model trains as usual
+
+
+class SlipCostSchedule(BaseCallback):
+    """A curriculum on the slip cost (``env_kwargs: {slip_cost_weight: W}``, docs/env.md): the gait is
+    learned first with a small cost (or none), then the cost is ramped up to the configured weight W, a
+    penalty curriculum as in legged-locomotion RL (e.g. Hwangbo et al. 2019, "Learning agile and dynamic
+    motor skills for legged robots", their curriculum factor on the cost terms).
+
+    With ``p`` the training progress (``num_timesteps`` over the run's total, a resumed run included),
+    the training envs' weight is ``W * (floor + (1 - floor) * clip((p - start_fraction) / (end_fraction -
+    start_fraction), 0, 1))``: ``floor * W`` up to ``start_fraction``, linear to W at ``end_fraction``,
+    then W. It is set on every sub-env through ``env_method("set_slip_cost_weight", ...)`` at the start
+    and after every vector step (it takes effect from the next step). The evaluation env (EvalCallback's,
+    which picks the best model) keeps the configured W, so every evaluation and the best-model choice
+    score the policy under the final cost, as ``snake-eval`` and the shipped env do; at the end of
+    training the training envs are set back to W too.
+
+    Args:
+        start_fraction: progress at which the ramp starts, in [0, 1).
+        end_fraction: progress at which the weight reaches W, in (start_fraction, 1].
+        floor: the weight before the ramp as a fraction of W, in [0, 1] (0: no cost before it).
+    """
+
+    def __init__(self, start_fraction: float = 0.4, end_fraction: float = 1.0, floor: float = 0.0,
+                 verbose: int = 0):
+        super().__init__(verbose)
+        for name, value in (("start_fraction", start_fraction), ("end_fraction", end_fraction), ("floor", floor)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= 1.0:
+                raise ValueError(f"SlipCostSchedule {name} must be a number in [0, 1], got {value!r}")
+        if not start_fraction < end_fraction:
+            raise ValueError(f"SlipCostSchedule start_fraction must be below end_fraction ({end_fraction!r}), "
+                             f"got {start_fraction!r}")
+        self.start_fraction = float(start_fraction)
+        self.end_fraction = float(end_fraction)
+        self.floor = float(floor)
+        self.final_weight = None  # W, read from the training env at the start
+        self.weight = None  # the weight the training envs have now
+
+    def weight_at(self, progress: float) -> float:
+        """The scheduled weight (per m g of excess) at training progress ``progress`` in [0, 1]."""
+        ramp = (progress - self.start_fraction) / (self.end_fraction - self.start_fraction)
+        return self.final_weight * (self.floor + (1.0 - self.floor) * min(max(ramp, 0.0), 1.0))
+
+    def _set(self, weight: float) -> None:
+        if weight != self.weight:
+            self.training_env.env_method("set_slip_cost_weight", weight)
+            self.weight = weight
+        self.logger.record("train/slip_cost_weight", weight)
+
+    def _on_training_start(self) -> None:
+        weights = set(self.training_env.get_attr("slip_cost_weight"))
+        if len(weights) != 1 or not next(iter(weights)) > 0.0:
+            raise ValueError(f"SlipCostSchedule needs env_kwargs slip_cost_weight > 0 (the weight it ramps to), "
+                             f"got {sorted(weights)}")
+        self.final_weight = float(next(iter(weights)))
+        self.weight = self.final_weight
+        self._on_step()
+
+    def _on_step(self) -> bool:
+        total = max(int(getattr(self.model, "_total_timesteps", 0)), 1)
+        self._set(self.weight_at(min(self.model.num_timesteps / total, 1.0)))
+        return True
+
+    def _on_training_end(self) -> None:
+        self._set(self.final_weight)  # the configured weight, as the evaluation and the shipped env have it

@@ -341,7 +341,13 @@ def validate(config: dict) -> dict:
     if isinstance(config.get("replay_buffer_kwargs"), str):
         parse_python_dict(config["replay_buffer_kwargs"], "replay_buffer_kwargs")
     if config["callback"] is not None:
-        from snake_env.train.callbacks import ResidualBurnIn
+        from snake_env.train.callbacks import ResidualBurnIn, SlipCostSchedule
+
+        if any(isinstance(c, SlipCostSchedule) for c in make_callbacks(config)):
+            weight = config["env_kwargs"].get("slip_cost_weight", 0.0)
+            if isinstance(weight, bool) or not isinstance(weight, numbers.Real) or not weight > 0:
+                raise ConfigError(f"callback SlipCostSchedule needs env_kwargs slip_cost_weight > 0 (the weight "
+                                  f"it ramps to), got {weight!r}")
 
         # SAC's default learning_starts is 100
         burn_ins = [c for c in make_callbacks(config) if isinstance(c, ResidualBurnIn)]

@@ -12,7 +12,7 @@ vector env equals N single envs step by step.
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import numpy as np
 from gymnasium import spaces
@@ -126,6 +126,7 @@ class SnakeBatch:
 
     def __init__(self, task: Task, config: PhysicsConfig, num_envs: int):
         physics.stepping.announce_compile()  # never a silent first-run wait
+        physics.stepping.compile_in_background()  # the rarely needed kernels, beside this process's compile
         self.task = task
         self.config = config
         self.model, self.params = config.build()
@@ -136,6 +137,8 @@ class SnakeBatch:
         energy = ((ENERGY_KEY,) if task.energy_cost_weight else ()) + ((SLIP_KEY,) if task.slip_cost_weight else ())
         if task.slip_cost_weight and config.wheel_friction is None:
             raise ValueError("slip_cost_weight needs wheel_friction (a mu): with unlimited grip no wheel slips")
+        # the slip cost's info key is fixed at construction; set_slip_cost_weight may change its weight (even to 0)
+        self.slip_cost = bool(task.slip_cost_weight)
         self.report_grip = config.wheel_friction is not None
         self.step_info_keys = (COMMON_STEP_INFO_KEYS + WHEEL_INFO_KEYS * self.report_grip + task.step_info_keys
                                + energy)
@@ -253,7 +256,7 @@ class SnakeBatch:
             # every task: a cost on the actuator power (W; common_step_values), off by default
             extras[ENERGY_KEY] = -self.task.energy_cost_weight * self.common_values[ACTUATOR_POWER_ROW]
             rewards = rewards + extras[ENERGY_KEY]
-        if self.task.slip_cost_weight:
+        if self.slip_cost:
             # every task: a cost on the wheels' lateral force beyond their grip, in link weights (the motion's
             # own excess: the traction limit already keeps the motors' torques from adding any)
             # (a wheel the traction limit holds at its grip is above it by rounding: < 1e-15 link weights)
@@ -271,6 +274,18 @@ class SnakeBatch:
                 if key.startswith("reward_"):
                     extras[key] = np.where(failed, 0.0, extras[key])
         return rewards, terminated, extras
+
+    def set_slip_cost_weight(self, weight: float) -> Task:
+        """Make the slip cost's weight ``weight`` (per m g of excess, >= 0) from the next step on: the task
+        (frozen) is replaced by a copy with that weight, which is returned. Only a batch made with
+        ``slip_cost_weight`` > 0 can (its info key ``reward_slip`` is fixed at construction)."""
+        if not self.slip_cost:
+            raise ValueError("set_slip_cost_weight needs an env made with slip_cost_weight > 0 (its info key "
+                             f"{SLIP_KEY} is fixed at construction), got slip_cost_weight=0")
+        if isinstance(weight, bool) or not isinstance(weight, (int, float, np.floating, np.integer)):
+            raise ValueError(f"slip_cost_weight must be a finite number >= 0, got {weight!r}")
+        self.task = replace(self.task, slip_cost_weight=float(weight))  # the task's own check of the value
+        return self.task
 
     def wheel_lateral_forces(self) -> np.ndarray:
         """The wheels' lateral forces (B, n) (N) of the current states under the torques held last."""
@@ -321,6 +336,14 @@ class TaskEnvBase:
         """The task's per-episode state (goal, command, path offset, ...) as arrays of B rows
         (one row for the single env)."""
         return self._batch.task_state
+
+    def set_slip_cost_weight(self, weight: float) -> None:
+        """Change the slip cost's weight (per m g of excess, >= 0) of every sub-env from the next step on,
+        e.g. a curriculum during training (:class:`snake_env.train.callbacks.SlipCostSchedule`). The env
+        must be made with ``slip_cost_weight`` > 0: its info key ``reward_slip`` (kept, 0 at weight 0) is
+        fixed at construction."""
+        self.task = self._batch.set_slip_cost_weight(weight)
+        self.slip_cost_weight = self.task.slip_cost_weight
 
     def _overlay(self, row: int):
         """The task's drawing for sub-env ``row`` (see :meth:`Task.overlay`)."""
