@@ -184,6 +184,8 @@ def table_rows(results: dict) -> list[tuple[str, str, str]]:
                      f"(process wall {_fmt(startup['process_wall_s'])} s); cold start from an empty numba cache: "
                      + (f"{_fmt(startup['first_run']['import_and_first_step_s'])} s to the first step, "
                         f"{_fmt(startup['cold_start_s'])} s with a first 32-env vector step"
+                        + (f", {_fmt(startup['first_run']['all_kernels_s'])} s until the background compile "
+                           f"(refinement kernels) finished" if "all_kernels_s" in startup["first_run"] else "")
                         if startup.get("cold_start_s") is not None else "not measured")))
     return rows
 

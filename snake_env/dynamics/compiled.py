@@ -396,7 +396,8 @@ def wheel_lateral_forces(model, q, u, torques, links, dq, du, out):
     torques (motor, traction limit, damping, barrier). ``links`` (n, LINK_CHANNELS), dq (n+2,),
     du (2,) are scratch; writes out (n,); returns the traction scale (1 with unlimited grip)."""
     if model[11].shape[0] > 0:
-        return traction_derivatives(model, q, u, torques, dq, du, links, out)[1]
+        # the defaults given explicitly: one compiled specialisation for every caller (~2 s cold each)
+        return traction_derivatives(model, q, u, torques, dq, du, links, out, 1.0, np.empty(0))[1]
     m, h, inertia = model[0], model[1], model[2]
     c_wheel = model[4]
     rotor = model[12]
@@ -1195,9 +1196,10 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
     err = 0.0
     scale = 1.0
     if traction:  # the traction scale of each substep is set at its start (see rk4_step_workspace)
-        p1, scale, m1 = traction_derivatives(model, q, u, torques, kq, ku, links, lam)
+        # the defaults given explicitly: one compiled specialisation for every caller (~2 s cold each)
+        p1, scale, m1 = traction_derivatives(model, q, u, torques, kq, ku, links, lam, 1.0, np.empty(0))
     else:
-        p1, m1 = derivatives_motor(model, q, u, torques, kq, ku)
+        p1, m1 = derivatives_motor(model, q, u, torques, kq, ku, 1.0)
     for i in range(n_substeps):
         # stage 1 at (q, u): kq, ku hold it (computed at the end of the previous substep)
         for j in range(nq):
@@ -1238,7 +1240,7 @@ def rk4_step_estimate(model, q, u, torques, dt, n_substeps, tol, v_ref, stop_abo
         if traction:
             p1, scale, m1 = traction_derivatives(model, q, u, torques, kq, ku, links, lam, scale, du_old)
         else:
-            p1, m1 = derivatives_motor(model, q, u, torques, kq, ku)
+            p1, m1 = derivatives_motor(model, q, u, torques, kq, ku, 1.0)
             du_old[0] = ku[0]
             du_old[1] = ku[1]
         for k in range(n):

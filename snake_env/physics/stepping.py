@@ -39,7 +39,10 @@ state it produced; a step passes when
     onto each other: no contact in the model, not physical).
 A snake whose step fails is integrated again from its pre-step state by the
 per-snake kernel with the substep halved, up to ``max_refinements`` times
-(only that snake: the others keep their lane result); an attempt below the
+(only that snake: the others keep their lane result; this happens in a second
+compiled call, :func:`_finish_rows`, made only when the lane kernel leaves such
+snakes, so the first step compiles the lane kernel alone and a background
+process compiles the rest: :func:`compile_in_background`); an attempt below the
 finest level stops at its first substep over error_tolerance, since it is
 redone finer anyway (the accepted step is the same, bit for bit). If the finest step
 still fails, the step is a simulation failure: the pre-step state is kept
@@ -60,6 +63,7 @@ after thousands of turns) is stepped by the per-snake kernel
 from __future__ import annotations
 
 import math
+import subprocess
 import sys
 from dataclasses import dataclass
 from functools import cached_property
@@ -553,6 +557,13 @@ def _observe_lanes(model, s, nl):
         s[_H_KINETIC + l] = s[o + _B_K + l]
 
 
+# aux[b, AUX_REFINEMENTS] of a row that the lane kernel (_step_lanes) left to :func:`_finish_rows`; negative,
+# so never a real count of halvings. The rest of such a row is written by _finish_rows.
+PENDING_LANE = -1.0  # the lane attempt failed the check: refined or undone from the pre-step state;
+#                      aux[AUX_FAILED] and aux[AUX_RESIDUAL] hold the lane attempt's verdict meanwhile
+PENDING_ALONE = -2.0  # link angles beyond the lanes' sin/cos range: stepped by the per-snake kernel
+
+
 @njit(cache=True, nogil=True)
 def _load_lane(s, lane, q, u, work, motor):
     """Put one snake's state (q (n+2,), u (2,)), work and motors' energy (J) into lane ``lane`` of the scratch."""
@@ -567,118 +578,97 @@ def _load_lane(s, lane, q, u, work, motor):
     s[_H_MOTOR + lane] = motor
 
 
-# inline="always": one dispatcher level less between the env step and the lane stages (see
-# compiled.rk4_lanes_estimate); _step_lanes and _step_lanes_parallel each get their own copy
 @njit(cache=True, nogil=True, inline="always")
-def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s, forces, scale,
-                     links, dq, du):
-    """:func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES): the
-    first attempt in lanes, refinements of failing snakes by the per-snake kernel. With ``forces``
-    (B, n) not empty, also each snake's wheel forces and traction scale (:func:`_step_forces`)."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
-    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
-    n = m.shape[0]
+def _load_pre_step(model, total_mass, q, u, torques, index, start, nl, s):
+    """Load snakes index[start:start+nl] into the lanes with their pre-step kinetic energy (row K0) and
+    centre of mass (rows CX0, CY0)."""
     compiled.load_lanes(s, q, u, torques, index, start, nl)
-    _observe_lanes(model, s, nl)  # the pre-step kinetic energy
+    _observe_lanes(model, s, nl)
     for l in range(nl):
         lane = _U(l)
         s[_H_K0 + lane] = s[_H_KINETIC + lane]
     _center_of_mass_lanes(model, total_mass, s, nl, _H_CX0, _H_CY0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _store_lane(settings, s, lane, n, b, q, u, obs, aux, code, refinements, residual):
+    """Snake b's state, observation and aux row from lane ``lane`` (after _observe_lanes and the
+    final _center_of_mass_lanes into rows CX, CY)."""
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
+    for k in range(n):
+        q[b, k] = s[compiled.lane_block(k) + _B_Q + lane]
+    q[b, n] = s[_H_X + lane]
+    q[b, n + 1] = s[_H_Y + lane]
+    u[b, 0] = s[_H_U0 + lane]
+    u[b, 1] = s[_H_U1 + lane]
+    cx = s[_H_CX + lane]
+    cy = s[_H_CY + lane]
+    j = 0
+    if include_position:
+        obs[b, 0] = cx
+        obs[b, 1] = cy
+        j = 2
+    for k in range(n - 1):
+        obs[b, j + k] = s[compiled.lane_block(k) + _B_PHI + lane]
+    j += n - 1
+    obs[b, j] = s[_H_COS1 + lane]
+    obs[b, j + 1] = s[_H_SIN1 + lane]
+    obs[b, j + 2] = u[b, 0]
+    obs[b, j + 3] = u[b, 1]
+    j += 4
+    for k in range(n - 1):
+        obs[b, j + k] = s[compiled.lane_block(k) + _B_PHIDOT + lane]
+    env_dt = sim_dt * frame_skip
+    aux[b, AUX_X] = cx
+    aux[b, AUX_Y] = cy
+    aux[b, AUX_VX] = (cx - s[_H_CX0 + lane]) / env_dt
+    aux[b, AUX_VY] = (cy - s[_H_CY0 + lane]) / env_dt
+    aux[b, AUX_KINETIC] = s[_H_KINETIC + lane]
+    aux[b, AUX_WORK] = s[_H_WORK + lane]
+    aux[b, AUX_FAILED] = code
+    aux[b, AUX_REFINEMENTS] = refinements
+    aux[b, AUX_RESIDUAL] = residual
+    aux[b, AUX_MOTOR_ENERGY] = s[_H_MOTOR + lane]
+
+
+# inline="always": one dispatcher level less between the env step and the lane stages (see
+# compiled.rk4_lanes_estimate); _step_lanes and _step_lanes_parallel each get their own copy
+@njit(cache=True, nogil=True, inline="always")
+def _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s, forces, scale):
+    """The first attempt of :func:`_step_one` for the snakes index[start:start+nl] (nl <= LANES), in
+    lanes. A snake that passes the check gets its results (and with ``forces`` (B, n) not empty, its
+    wheel forces and traction scale from the integrator's last traction pass at the final state: the
+    model must have finite grip). A snake that fails keeps its pre-step state, its verdict in
+    aux[AUX_FAILED] and aux[AUX_RESIDUAL] and aux[AUX_REFINEMENTS] = PENDING_LANE, for
+    :func:`_finish_rows`. Returns the number of those."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
+    n = m.shape[0]
+    _load_pre_step(model, total_mass, q, u, torques, index, start, nl, s)
     compiled.rk4_lanes_estimate(model, s, nl, sim_dt, frame_skip, err_tol, h[0])
     _observe_lanes(model, s, nl)
-    # the step check; the pre-step state of each snake is still in q, u (written back only below)
-    codes = np.zeros(nl, np.int64)
-    in_lane = np.ones(nl, np.bool_)  # the lane's own result stands (not refined, not undone)
-    refinements = np.zeros(nl, np.int64)
-    residuals = np.zeros(nl)
-    redo = False
-    q1 = np.empty(n + 2)
-    u1 = np.empty(2)
+    _center_of_mass_lanes(model, total_mass, s, nl, _H_CX, _H_CY)
+    pending = 0
     for l in range(nl):
         lane = _U(l)
+        b = index[start + l]
         finite = (math.isfinite(s[_H_WORK + lane]) and math.isfinite(s[_H_U0 + lane])
                   and math.isfinite(s[_H_U1 + lane]) and math.isfinite(s[_H_X + lane])
                   and math.isfinite(s[_H_Y + lane]) and math.isfinite(s[_H_KINETIC + lane]))
         for k in range(n):
             finite = finite and math.isfinite(s[compiled.lane_block(k) + _B_Q + lane])
-        k0 = s[_H_K0 + lane]
-        code, residual = _verdict(finite, s[_H_ERR + lane], k0, s[_H_KINETIC + lane], s[_H_WORK + lane],
-                                  s[_H_RATE + lane], s[_H_FOLD + lane], sim_dt, settings)
-        if code == 0:
-            residuals[l] = residual
+        code, residual = _verdict(finite, s[_H_ERR + lane], s[_H_K0 + lane], s[_H_KINETIC + lane],
+                                  s[_H_WORK + lane], s[_H_RATE + lane], s[_H_FOLD + lane], sim_dt, settings)
+        if code != 0:
+            aux[b, AUX_FAILED] = code
+            aux[b, AUX_RESIDUAL] = residual
+            aux[b, AUX_REFINEMENTS] = PENDING_LANE
+            pending += 1
             continue
-        b = index[start + l]
-        in_lane[l] = False
-        work = 0.0
-        motor = 0.0
-        r = 0
-        if max_ref > 0 and code != FAIL_FOLD:  # an accurate fold is final (module doc)
-            code, work, r, residual, motor = _integrate_checked(model, settings, _ONE, max_ref, q[b], u[b],
-                                                                torques[b], k0, q1, u1)
-        else:  # element by element: a slice copy compiles numba's shape-mismatch message (~2 s cold)
-            for j in range(n + 2):
-                q1[j] = q[b, j]
-            u1[0] = u[b, 0]
-            u1[1] = u[b, 1]
-        # the accepted refined state, or the pre-step state of a failed step
-        _load_lane(s, lane, q1, u1, work, motor)
-        codes[l] = code
-        refinements[l] = r
-        residuals[l] = residual
-        redo = True
-    if redo:
-        _observe_lanes(model, s, nl)
-    _center_of_mass_lanes(model, total_mass, s, nl, _H_CX, _H_CY)
-    env_dt = sim_dt * frame_skip
-    for l in range(nl):
-        lane = _U(l)
-        b = index[start + l]
-        for k in range(n):
-            q[b, k] = s[compiled.lane_block(k) + _B_Q + lane]
-        q[b, n] = s[_H_X + lane]
-        q[b, n + 1] = s[_H_Y + lane]
-        u[b, 0] = s[_H_U0 + lane]
-        u[b, 1] = s[_H_U1 + lane]
-        cx = s[_H_CX + lane]
-        cy = s[_H_CY + lane]
-        j = 0
-        if include_position:
-            obs[b, 0] = cx
-            obs[b, 1] = cy
-            j = 2
-        for k in range(n - 1):
-            obs[b, j + k] = s[compiled.lane_block(k) + _B_PHI + lane]
-        j += n - 1
-        obs[b, j] = s[_H_COS1 + lane]
-        obs[b, j + 1] = s[_H_SIN1 + lane]
-        obs[b, j + 2] = u[b, 0]
-        obs[b, j + 3] = u[b, 1]
-        j += 4
-        for k in range(n - 1):
-            obs[b, j + k] = s[compiled.lane_block(k) + _B_PHIDOT + lane]
-        aux[b, AUX_X] = cx
-        aux[b, AUX_Y] = cy
-        aux[b, AUX_VX] = (cx - s[_H_CX0 + lane]) / env_dt
-        aux[b, AUX_VY] = (cy - s[_H_CY0 + lane]) / env_dt
-        aux[b, AUX_KINETIC] = s[_H_KINETIC + lane]
-        aux[b, AUX_WORK] = s[_H_WORK + lane]
-        aux[b, AUX_FAILED] = codes[l]
-        aux[b, AUX_REFINEMENTS] = refinements[l]
-        aux[b, AUX_RESIDUAL] = residuals[l]
-        aux[b, AUX_MOTOR_ENERGY] = s[_H_MOTOR + lane]
+        _store_lane(settings, s, lane, n, b, q, u, obs, aux, 0, 0, residual)
         if forces.shape[0] > 0:
-            if in_lane[l] and model[11].shape[0] > 0:  # from the k5 traction pass at the final state
-                scale[b] = compiled.lane_wheel_forces(s, lane, n, forces[b])
-            else:
-                _step_forces(model, q, u, torques, b, forces, scale, links, dq, du)
-
-
-@njit(cache=True, nogil=True)
-def _step_forces(model, q, u, torques, b, forces, scale, links, dq, du):
-    """Snake b's wheel forces and traction scale at its current state by their own sweep
-    (compiled.wheel_lateral_forces), for a snake the lanes did not finish: refined, undone or
-    stepped alone."""
-    scale[b] = compiled.wheel_lateral_forces(model, q[b], u[b], torques[b], links, dq, du, forces[b])
+            scale[b] = compiled.lane_wheel_forces(s, lane, n, forces[b])
+    return pending
 
 
 @njit(cache=True, nogil=True)
@@ -691,56 +681,163 @@ def _total_mass(m):
 
 @njit(cache=True, nogil=True)
 def _step_lanes(model, settings, q, u, torques, obs, aux, forces, scale):
-    """Step B snakes on one thread: lane groups of compiled.LANES, and
-    :func:`_step_one` for the rare snake whose angles exceed the lanes' sin/cos range.
-    ``forces`` (B, n), ``scale`` (B,): the wheel forces and traction scale at the step's end, or
-    empty arrays for none."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    """The first attempt of the env step of B snakes on one thread, in lane groups of compiled.LANES
+    (:func:`_step_lane_group`). Returns the numbers of snakes left (state untouched): to
+    :func:`_finish_rows`, those that failed the check; to :func:`_step_alone`, the rare snake whose angles
+    exceed the lanes' sin/cos range (aux[AUX_REFINEMENTS] = PENDING_ALONE). ``forces`` (B, n), ``scale``
+    (B,): the wheel forces and traction scale at the step's end with finite grip, or empty arrays for none."""
+    m = model[0]
     n = m.shape[0]
-    links = np.empty((n, compiled.LINK_CHANNELS))
-    dq = np.empty(n + 2)
-    du = np.empty(2)
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
-        b = index[i]
-        _step_one(model, settings, q[b], u[b], torques[b], obs[b], aux[b])
-        if forces.shape[0] > 0:
-            _step_forces(model, q, u, torques, b, forces, scale, links, dq, du)
+        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
     s = np.empty(compiled.lanes_scratch_size(n))
     total_mass = _total_mass(m)
+    pending = 0
     for start in range(0, count, _LANES):
-        _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
-                         min(_LANES, count - start), s, forces, scale, links, dq, du)
+        pending += _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
+                                    min(_LANES, count - start), s, forces, scale)
+    return pending, q.shape[0] - count
 
 
 @njit(cache=True, parallel=True)
 def _step_lanes_parallel(model, settings, q, u, torques, obs, aux, forces, scale):
     """:func:`_step_lanes` with the lane groups spread over threads."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit = model[:8]
+    m = model[0]
     n = m.shape[0]
     index, count = compiled.split_lanes(q)
     for i in range(count, q.shape[0]):
-        b = index[i]
-        _step_one(model, settings, q[b], u[b], torques[b], obs[b], aux[b])
+        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    size = compiled.lanes_scratch_size(n)
+    total_mass = _total_mass(m)
+    groups = (count + _LANES - 1) // _LANES
+    left = np.zeros(groups, np.int64)  # per group, not a prange reduction: parfors cannot reduce over the inlined group
+    for group in prange(groups):
+        start = group * _LANES
+        s = np.empty(size)
+        left[group] = _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
+                                       min(_LANES, count - start), s, forces, scale)
+    pending = 0
+    for group in range(groups):
+        pending += left[group]
+    return pending, q.shape[0] - count
+
+
+# ---------------------------------------------------------------------- what the lanes left
+# The refinement and the per-snake path compile on their own (:func:`_finish_rows`), so the first step
+# compiles only the lane kernel; a background process compiles them meanwhile (compile_in_background).
+
+@njit(cache=True, nogil=True, inline="always")
+def _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s, forces, scale,
+                       links, dq, du):
+    """Snakes index[start:start+nl] whose lane attempt failed (PENDING_LANE): each is integrated again
+    from its pre-step state by the per-snake kernel from one halving on (:func:`_integrate_checked`), or
+    undone (a fold, or no refinements allowed); then observed and stored in lanes exactly as a passing
+    lane is, so a snake's result does not depend on its batch. With ``forces`` not empty, its wheel forces
+    and traction scale by their own sweep (:func:`_step_forces`)."""
+    sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
+    n = model[0].shape[0]
+    _load_pre_step(model, total_mass, q, u, torques, index, start, nl, s)
+    codes = np.zeros(nl, np.int64)
+    refinements = np.zeros(nl, np.int64)
+    residuals = np.zeros(nl)
+    q1 = np.empty(n + 2)
+    u1 = np.empty(2)
+    for l in range(nl):
+        lane = _U(l)
+        b = index[start + l]
+        code = np.int64(aux[b, AUX_FAILED])
+        residual = aux[b, AUX_RESIDUAL]
+        work = 0.0
+        motor = 0.0
+        r = 0
+        if max_ref > 0 and code != FAIL_FOLD:  # an accurate fold is final (module doc)
+            code, work, r, residual, motor = _integrate_checked(model, settings, _ONE, max_ref, q[b], u[b],
+                                                                torques[b], s[_H_K0 + lane], q1, u1)
+        else:  # element by element: a slice copy compiles numba's shape-mismatch message (~2 s cold)
+            for j in range(n + 2):
+                q1[j] = q[b, j]
+            u1[0] = u[b, 0]
+            u1[1] = u[b, 1]
+        # the accepted refined state, or the pre-step state of a failed step
+        _load_lane(s, lane, q1, u1, work, motor)
+        codes[l] = code
+        refinements[l] = r
+        residuals[l] = residual
+    _observe_lanes(model, s, nl)
+    _center_of_mass_lanes(model, total_mass, s, nl, _H_CX, _H_CY)
+    for l in range(nl):
+        b = index[start + l]
+        _store_lane(settings, s, _U(l), n, b, q, u, obs, aux, codes[l], refinements[l], residuals[l])
         if forces.shape[0] > 0:
-            _step_forces(model, q, u, torques, b, forces, scale, np.empty((n, compiled.LINK_CHANNELS)),
-                         np.empty(n + 2), np.empty(2))
+            _step_forces(model, q, u, torques, b, forces, scale, links, dq, du)
+
+
+@njit(cache=True, nogil=True)
+def _step_forces(model, q, u, torques, b, forces, scale, links, dq, du):
+    """Snake b's wheel forces and traction scale at its current state by their own sweep
+    (compiled.wheel_lateral_forces), for a snake the lanes did not finish: refined, undone or
+    stepped alone."""
+    scale[b] = compiled.wheel_lateral_forces(model, q[b], u[b], torques[b], links, dq, du, forces[b])
+
+
+@njit(cache=True, nogil=True)
+def _step_alone(model, settings, q, u, torques, obs, aux, forces, scale):
+    """Step the rows :func:`_step_lanes` left as PENDING_ALONE by the per-snake kernel :func:`_step_one`
+    (libm sin/cos); compiled only when a snake first turns beyond the lanes' range."""
+    n = model[0].shape[0]
+    links = np.empty((n, compiled.LINK_CHANNELS))
+    dq = np.empty(n + 2)
+    du = np.empty(2)
+    for b in range(q.shape[0]):
+        if aux[b, AUX_REFINEMENTS] == PENDING_ALONE:
+            _step_one(model, settings, q[b], u[b], torques[b], obs[b], aux[b])
+            if forces.shape[0] > 0:
+                _step_forces(model, q, u, torques, b, forces, scale, links, dq, du)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pending_lanes(aux):
+    """(index, count) of the rows marked PENDING_LANE."""
+    index = np.empty(aux.shape[0], np.int64)
+    count = 0
+    for b in range(aux.shape[0]):
+        if aux[b, AUX_REFINEMENTS] == PENDING_LANE:
+            index[count] = b
+            count += 1
+    return index, count
+
+
+@njit(cache=True, nogil=True)
+def _finish_rows(model, settings, q, u, torques, obs, aux, forces, scale):
+    """Finish the step of the rows :func:`_step_lanes` left as PENDING_LANE, on one thread: refinement in
+    the per-snake kernel, or the step undone. ``forces``, ``scale``: as given to _step_lanes."""
+    m = model[0]
+    n = m.shape[0]
+    index, count = _pending_lanes(aux)
+    links = np.empty((n, compiled.LINK_CHANNELS))
+    dq = np.empty(n + 2)
+    du = np.empty(2)
+    s = np.empty(compiled.lanes_scratch_size(n))
+    total_mass = _total_mass(m)
+    for start in range(0, count, _LANES):
+        _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
+                           min(_LANES, count - start), s, forces, scale, links, dq, du)
+
+
+@njit(cache=True, parallel=True)
+def _finish_rows_parallel(model, settings, q, u, torques, obs, aux, forces, scale):
+    """:func:`_finish_rows` with the lane groups spread over threads."""
+    m = model[0]
+    n = m.shape[0]
+    index, count = _pending_lanes(aux)
     size = compiled.lanes_scratch_size(n)
     total_mass = _total_mass(m)
     for group in prange((count + _LANES - 1) // _LANES):
         start = group * _LANES
-        s = np.empty(size)
-        _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
-                         min(_LANES, count - start), s, forces, scale, np.empty((n, compiled.LINK_CHANNELS)),
-                         np.empty(n + 2), np.empty(2))
-
-
-@njit(cache=True, nogil=True)
-def _step_lanes_one(model, settings, q, u, torques, obs, aux):
-    """One snake (1-D arrays) through the lane kernel, so it equals any row of a batch bit for bit."""
-    _step_lanes(model, settings, q.reshape((1, q.shape[0])), u.reshape((1, 2)),
-                torques.reshape((1, torques.shape[0])), obs.reshape((1, obs.shape[0])),
-                aux.reshape((1, aux.shape[0])), np.empty((0, q.shape[0] - 2)), np.empty(0))
+        _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
+                           min(_LANES, count - start), np.empty(size), forces, scale,
+                           np.empty((n, compiled.LINK_CHANNELS)), np.empty(n + 2), np.empty(2))
 
 
 @njit(cache=True, nogil=True)
@@ -772,15 +869,20 @@ def _reset_one(model, settings, noise, q, u, obs, aux):
 
 
 @njit(cache=True, nogil=True)
-def _reset_batch(model, settings, noise, q, u, obs, aux):
+def _reset_alone(model, settings, noise, q, u, obs, aux):
+    """:func:`_reset_one` of the rows :func:`_reset_lanes` left (aux[AUX_REFINEMENTS] = PENDING_ALONE)."""
     for b in range(noise.shape[0]):
-        _reset_one(model, settings, noise[b], q[b], u[b], obs[b], aux[b])
+        if aux[b, AUX_REFINEMENTS] == PENDING_ALONE:
+            _reset_one(model, settings, noise[b], q[b], u[b], obs[b], aux[b])
 
 
 @njit(cache=True, nogil=True)
-def _observe_batch(model, settings, q, u, obs, aux):
+def _observe_alone(model, settings, q, u, obs, aux):
+    """:func:`_observe` of the rows :func:`_observe_rows_lanes` left (aux[AUX_REFINEMENTS] = PENDING_ALONE)."""
     sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     for b in range(q.shape[0]):
+        if aux[b, AUX_REFINEMENTS] != PENDING_ALONE:
+            continue
         cx, cy = _center_of_mass(model, q[b])
         aux[b, AUX_X] = cx
         aux[b, AUX_Y] = cy
@@ -792,6 +894,77 @@ def _observe_batch(model, settings, q, u, obs, aux):
         aux[b, AUX_REFINEMENTS] = 0.0
         aux[b, AUX_RESIDUAL] = 0.0
         aux[b, AUX_MOTOR_ENERGY] = 0.0
+
+
+# Reset and observation in lanes: the lane helpers the step compiles anyway, so a first reset compiles no
+# per-snake code (that waits for a snake beyond the lanes' range); the same bits as _reset_one and
+# _observe (the lane sin/cos and wrapping are theirs; tests/physics/test_lanes.py).
+
+@njit(cache=True, nogil=True, inline="always")
+def _store_still(settings, s, lane, n, b, q, u, obs, aux):
+    """:func:`_store_lane` of a state that was not stepped: velocity, work, energy and verdict 0."""
+    _store_lane(settings, s, lane, n, b, q, u, obs, aux, 0, 0, 0.0)
+    aux[b, AUX_VX] = 0.0
+    aux[b, AUX_VY] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def _reset_lanes(model, settings, noise, q, u, obs, aux):
+    """:func:`_reset_one` of every row of noise (B, n+2), in lane groups. Returns the number of rows left
+    to :func:`_reset_alone` (angles beyond the lanes' range), marked aux[AUX_REFINEMENTS] = PENDING_ALONE."""
+    m = model[0]
+    n = m.shape[0]
+    index, count = compiled.split_lanes(noise)  # the angles are noise[:, :n]
+    for i in range(count, noise.shape[0]):
+        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    s = np.empty(compiled.lanes_scratch_size(n))
+    total_mass = _total_mass(m)
+    for start in range(0, count, _LANES):
+        nl = min(_LANES, count - start)
+        for l in range(nl):
+            lane = _U(l)
+            b = index[start + l]
+            for k in range(n):
+                s[compiled.lane_block(k) + _B_Q + lane] = noise[b, k]
+            s[_H_X + lane] = 0.0
+            s[_H_Y + lane] = 0.0
+            s[_H_U0 + lane] = noise[b, n]
+            s[_H_U1 + lane] = noise[b, n + 1]
+            s[_H_WORK + lane] = 0.0
+            s[_H_MOTOR + lane] = 0.0
+        _center_of_mass_lanes(model, total_mass, s, nl, _H_CX, _H_CY)
+        for l in range(nl):  # shift so the whole snake's CM sits at the origin, as _reset_one
+            lane = _U(l)
+            s[_H_X + lane] = -s[_H_CX + lane]
+            s[_H_Y + lane] = -s[_H_CY + lane]
+        _center_of_mass_lanes(model, total_mass, s, nl, _H_CX, _H_CY)
+        _observe_lanes(model, s, nl)
+        for l in range(nl):
+            _store_still(settings, s, _U(l), n, index[start + l], q, u, obs, aux)
+    return noise.shape[0] - count
+
+
+@njit(cache=True, nogil=True)
+def _observe_rows_lanes(model, settings, q, u, obs, aux):
+    """The observation and aux row of every state q (B, n+2), u (B, 2), as :func:`_observe` and
+    :func:`_center_of_mass` give them (velocity and work 0), in lane groups. Returns the number of rows
+    left to :func:`_observe_alone`, marked aux[AUX_REFINEMENTS] = PENDING_ALONE."""
+    m = model[0]
+    n = m.shape[0]
+    index, count = compiled.split_lanes(q)
+    for i in range(count, q.shape[0]):
+        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    s = np.empty(compiled.lanes_scratch_size(n))
+    total_mass = _total_mass(m)
+    for start in range(0, count, _LANES):
+        nl = min(_LANES, count - start)
+        for l in range(nl):
+            _load_lane(s, _U(l), q[index[start + l]], u[index[start + l]], 0.0, 0.0)
+        _center_of_mass_lanes(model, total_mass, s, nl, _H_CX, _H_CY)
+        _observe_lanes(model, s, nl)
+        for l in range(nl):
+            _store_still(settings, s, _U(l), n, index[start + l], q, u, obs, aux)
+    return q.shape[0] - count
 
 
 # --------------------------------------------------------------------------- pure API
@@ -826,20 +999,18 @@ def step(params: PhysicsParams, q, u, torques):
     if torques.shape != q.shape[:-1] + (params.n_links - 1,):
         raise ValueError(f"torques must have shape {q.shape[:-1] + (params.n_links - 1,)}, got {torques.shape}")
     obs, aux = _outputs(params, q.shape[:-1])
-    if q.ndim == 1:
-        _step_lanes_one(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux)
+    if q.ndim == 1:  # a batch of one: the same lane kernel, so it equals any row of a batch bit for bit
+        step_inplace(params, q[None], u[None], torques[None], obs[None], aux[None])
     else:
         step_inplace(params, q, u, torques, obs, aux)
     return q, u, obs, aux
 
 
-def _kernel(q):
+def _threaded(q) -> bool:
     # threads pay off only for enough work per call (see PARALLEL_MIN_WORK), and only with more than one
     # thread: with one, the parallel kernel runs the same loop after a compile of its own (the whole
     # lane kernel again) on the first large batch
-    if q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK and numba.get_num_threads() > 1:
-        return _step_lanes_parallel
-    return _step_lanes
+    return q.shape[0] * q.shape[1] >= PARALLEL_MIN_WORK and numba.get_num_threads() > 1
 
 
 _NO_FORCES = np.empty((0, 0))
@@ -850,10 +1021,30 @@ def step_inplace(params: PhysicsParams, q, u, torques, obs, aux, forces=None, sc
     """:func:`step` of a batch (2-D arrays) writing into caller-owned float64 C-contiguous buffers (the
     envs' hot path). With ``forces`` (B, n) and ``scale`` (B,), also each snake's wheel lateral forces
     (N) and traction scale at the step's end, as :func:`wheel_lateral_forces` gives them: with finite
-    grip read from the integrator's last traction pass at the final state, so they cost no sweep."""
-    if forces is None:
-        forces, scale = _NO_FORCES, _NO_SCALE
-    _kernel(q)(params.kernel_model, params.kernel_settings, q, u, torques, obs, aux, forces, scale)
+    grip read from the integrator's last traction pass at the final state, so they cost no sweep.
+
+    The lane kernel steps every snake it can (:func:`_step_lanes`); :func:`_finish_rows` finishes the
+    snakes that failed its check (refinement, undone steps) and :func:`_step_alone` those beyond the
+    lanes' range, each called only when there are any."""
+    model = params.kernel_model
+    settings = params.kernel_settings
+    gripped = model[11].shape[0] > 0
+    if forces is None or not gripped:  # unlimited grip: the forces by their own sweep, below
+        lane_forces, lane_scale = _NO_FORCES, _NO_SCALE
+    else:
+        lane_forces, lane_scale = forces, scale
+    threaded = _threaded(q)
+    pending, alone = (_step_lanes_parallel if threaded else _step_lanes)(model, settings, q, u, torques, obs,
+                                                                          aux, lane_forces, lane_scale)
+    if alone:
+        _step_alone(model, settings, q, u, torques, obs, aux, lane_forces, lane_scale)
+    if pending:
+        if _background is not None and not _finish_rows.signatures:
+            _await_background_compile()
+        (_finish_rows_parallel if threaded else _finish_rows)(model, settings, q, u, torques, obs, aux,
+                                                               lane_forces, lane_scale)
+    if forces is not None and not gripped:
+        compiled.wheel_lateral_forces_batch(model, q, u, torques, forces, scale)
 
 
 def reset(params: PhysicsParams, noise):
@@ -870,7 +1061,8 @@ def reset(params: PhysicsParams, noise):
     q = np.empty((flat.shape[0], n + 2))
     u = np.empty((flat.shape[0], 2))
     obs, aux = _outputs(params, (flat.shape[0],))
-    _reset_batch(params.kernel_model, params.kernel_settings, flat, q, u, obs, aux)
+    if _reset_lanes(params.kernel_model, params.kernel_settings, flat, q, u, obs, aux):
+        _reset_alone(params.kernel_model, params.kernel_settings, flat, q, u, obs, aux)
     if noise.ndim == 1:
         return q[0], u[0], obs[0], aux[0]
     return q, u, obs, aux
@@ -882,7 +1074,8 @@ def observe(params: PhysicsParams, q, u):
     qf = q.reshape(-1, params.n_links + 2)
     uf = u.reshape(-1, 2)
     obs, aux = _outputs(params, (qf.shape[0],))
-    _observe_batch(params.kernel_model, params.kernel_settings, qf, uf, obs, aux)
+    if _observe_rows_lanes(params.kernel_model, params.kernel_settings, qf, uf, obs, aux):
+        _observe_alone(params.kernel_model, params.kernel_settings, qf, uf, obs, aux)
     if q.ndim == 1:
         return obs[0], aux[0]
     return obs, aux
@@ -896,20 +1089,26 @@ def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out, scale) -> No
     compiled.wheel_lateral_forces_batch(params.kernel_model, q, u, torques, out, scale)
 
 
-# Said once per process on stderr before the first step compiles the kernels: measured 31 s from an
-# empty cache on the 2-core machine beside two trainings (docs/benchmarks.md); numba caches the result on disk.
-COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about half a minute on a "
+# Said once per process on stderr before the first step compiles the kernels (docs/benchmarks.md: the
+# first step from an empty cache); numba caches the result on disk.
+COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 15-20 s on a "
                   "2-core machine; cached afterwards)")
 _compile_announced = False
 
 
-def kernels_cached() -> bool:
-    """Whether numba's on-disk cache holds compiled code of the current step kernel (the lane kernel every
-    batch steps with) for this source file; False when it cannot tell."""
+def _cached(dispatcher) -> bool:
+    """Whether numba's on-disk cache holds compiled code of ``dispatcher`` for its source file; True when
+    it cannot tell."""
     try:
-        return bool(_step_lanes._cache._cache_file._load_index())
+        return bool(dispatcher._cache._cache_file._load_index())
     except Exception:  # numba internals moved: say nothing rather than something wrong
         return True
+
+
+def kernels_cached() -> bool:
+    """Whether numba's on-disk cache holds compiled code of the current step kernel (the lane kernel every
+    batch steps with) for this source file; True when it cannot tell."""
+    return _cached(_step_lanes)
 
 
 def announce_compile() -> bool:
@@ -920,6 +1119,45 @@ def announce_compile() -> bool:
     _compile_announced = True
     print(COMPILE_NOTICE, file=sys.stderr, flush=True)
     return True
+
+
+# The kernels only some steps need (:func:`_finish_rows`: refinement and the per-snake path; the wheel
+# forces of unlimited grip) compile in a second process, :mod:`snake_env.physics.background_compile`,
+# while this one compiles the lane kernel of the first step: numba compiles one function at a time per
+# process, so on two cores the two compiles overlap. The child writes numba's on-disk cache, from which
+# this process loads them when a step first needs them (waiting for the child if it is still at work).
+BACKGROUND_WAIT_S = 600.0  # s: longest wait for the child before compiling here instead
+_background = None  # the child process (subprocess.Popen) until awaited
+_background_started = False
+
+
+def compile_in_background() -> bool:
+    """Start :mod:`snake_env.physics.background_compile` once per process if :func:`_finish_rows` is not
+    compiled or cached yet; True if started."""
+    global _background, _background_started
+    if _background_started or _finish_rows.signatures or _cached(_finish_rows):
+        return False
+    _background_started = True
+    try:
+        _background = subprocess.Popen([sys.executable, "-m", "snake_env.physics.background_compile"],
+                                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                       stderr=subprocess.DEVNULL)
+    except OSError:  # no process to spare: the kernels compile here when first needed
+        return False
+    return True
+
+
+def _await_background_compile() -> None:
+    """Wait for the background compile (if any) to finish, so the next call loads its kernels from the cache."""
+    global _background
+    child, _background = _background, None
+    if child is None:
+        return
+    try:
+        child.wait(timeout=BACKGROUND_WAIT_S)
+    except subprocess.TimeoutExpired:  # stuck: compile here (the cache write is atomic either way)
+        child.kill()
+        child.wait()
 
 
 class InstantPhysics:

@@ -89,18 +89,46 @@ def test_observation_of_a_stepped_state_equals_observe(rng):
     np.testing.assert_array_equal(aux_again[:, AUX_KINETIC], aux[:, AUX_KINETIC])
 
 
-def test_threaded_lane_step_equals_the_serial_one(rng):
-    """The threaded kernel (used for very large batches) gives the serial kernel's bits."""
+def test_threaded_lane_step_equals_the_serial_one(rng, monkeypatch):
+    """The threaded kernels (used for very large batches: _step_lanes_parallel, then
+    _finish_rows_parallel for the rows it left) give the serial kernels' bits."""
     env = SnakeEnv(n_links=4)
     p = env.params
     B = 3 * compiled.LANES + 1
     q, u, torques = _states(rng, 4, B, bend=0.6)
     outputs = []
-    for kernel in (stepping._step_lanes, stepping._step_lanes_parallel):
+    for threaded in (False, True):
+        monkeypatch.setattr(stepping, "_threaded", lambda q, threaded=threaded: threaded)
         qk, uk = q.copy(), u.copy()
         obs, aux = np.empty((B, p.obs_size)), np.empty((B, AUX_SIZE))
         forces, scale = np.empty((B, 4)), np.empty(B)  # the wheel forces at the step's end too
-        kernel(p.kernel_model, p.kernel_settings, qk, uk, torques, obs, aux, forces, scale)
+        stepping.step_inplace(p, qk, uk, torques, obs, aux, forces, scale)
         outputs.append((qk, uk, obs, aux, forces, scale))
+    assert (outputs[0][3][:, stepping.AUX_REFINEMENTS] > 0).any()  # some rows went through _finish_rows
     for serial, threaded in zip(*outputs):
         np.testing.assert_array_equal(threaded, serial)
+
+
+@pytest.mark.parametrize("include_position", [False, True])
+def test_reset_and_observe_in_lanes_equal_the_per_snake_kernels(rng, include_position):
+    """reset() and observe() run in lanes (the step's lane helpers); every row, one beyond the lanes'
+    angle range included (it goes to the per-snake kernel), equals _reset_one / _observe bit for bit."""
+    env = SnakeEnv(n_links=5, exclude_current_positions_from_observation=not include_position)
+    p = env.params
+    B = compiled.LANES + 3
+    noise = rng.uniform(-0.3, 0.3, (B, 7))
+    noise[4, 2] = 2.0 * compiled.LANE_ANGLE_MAX
+    q, u, obs, aux = physics.reset(p, noise)
+    for b in range(B):
+        qb, ub = np.empty(7), np.empty(2)
+        obs_b, aux_b = np.empty(p.obs_size), np.empty(AUX_SIZE)
+        stepping._reset_one(p.kernel_model, p.kernel_settings, noise[b], qb, ub, obs_b, aux_b)
+        for got, want in ((q[b], qb), (u[b], ub), (obs[b], obs_b), (aux[b], aux_b)):
+            np.testing.assert_array_equal(got, want)
+    states, speeds, torques = _states(rng, 5, B)
+    states[7, 0] = -2.0 * compiled.LANE_ANGLE_MAX
+    obs, aux = physics.observe(p, states, speeds)
+    obs_ref, aux_ref = np.empty_like(obs), np.full_like(aux, stepping.PENDING_ALONE)
+    stepping._observe_alone(p.kernel_model, p.kernel_settings, states, speeds, obs_ref, aux_ref)
+    np.testing.assert_array_equal(obs, obs_ref)
+    np.testing.assert_array_equal(aux, aux_ref)

@@ -29,3 +29,31 @@ def test_first_run_announces_the_compile_once_and_the_second_is_silent(tmp_path)
     assert runs[0].stderr.count(COMPILE_NOTICE) == 1
     assert COMPILE_NOTICE not in runs[1].stderr
     assert any((tmp_path / "numba_cache").rglob("*.nbi"))  # the cache went where NUMBA_CACHE_DIR says
+
+
+# The kernels for the rows the lane kernel leaves (refinement, the per-snake path) compile in a second
+# process started when the env is made; this process then loads them from the cache instead of compiling.
+BACKGROUND = ("import gymnasium as gym, numpy as np, snake_env\n"
+              "from snake_env.physics import stepping\n"
+              "env = gym.make('snake_env/Snake5-v3'); env.reset(seed=0)\n"
+              "assert stepping._background is not None, 'no background compile started'\n"
+              "stepping._await_background_compile()\n"
+              "p = env.unwrapped.params\n"
+              "q = np.zeros((1, 7)); u = np.zeros((1, 2)); torques = np.zeros((1, 4))\n"
+              "obs, aux = np.empty((1, p.obs_size)), np.empty((1, stepping.AUX_SIZE))\n"
+              "forces, scale = np.empty((1, 5)), np.empty(1)\n"
+              "stepping.step_inplace(p, q, u, torques, obs, aux, forces, scale)\n"
+              "aux[0, stepping.AUX_FAILED] = stepping.FAIL_FOLD  # a failed lane attempt, to be undone\n"
+              "aux[0, stepping.AUX_REFINEMENTS] = stepping.PENDING_LANE\n"
+              "stepping._finish_rows(p.kernel_model, p.kernel_settings, q, u, torques, obs, aux, forces, scale)\n"
+              "assert aux[0, stepping.AUX_FAILED] == stepping.FAIL_FOLD and aux[0, stepping.AUX_REFINEMENTS] == 0\n"
+              "print(sum(stepping._finish_rows._cache_hits.values()), len(stepping._finish_rows._cache_misses))\n")
+
+
+@pytest.mark.slow
+def test_the_rarely_needed_kernels_compile_in_a_background_process(tmp_path):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba_cache")}
+    run = subprocess.run([sys.executable, "-c", BACKGROUND], capture_output=True, text=True, env=env, timeout=900)
+    assert run.returncode == 0, run.stderr[-2000:]
+    hits, misses = map(int, run.stdout.split())
+    assert (hits, misses) == (1, 0)  # loaded from what the background process cached, not compiled here

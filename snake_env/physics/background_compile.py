@@ -1,0 +1,74 @@
+"""Compile step kernels into numba's on-disk cache in a process of its own, beside the first step's compile.
+
+Started by :func:`snake_env.physics.stepping.compile_in_background` when an env is made and the kernels
+are not cached yet. Numba compiles one function at a time per process; this second process takes, in
+this order:
+
+* two parts of the lane kernel the parent needs for its first step (:func:`compile_lane_parts`);
+* the kernels only some steps need (:func:`compile_rare_kernels`):
+  :func:`~snake_env.physics.stepping._finish_rows` (refinement of the snakes that fail the step check,
+  or their step undone) and the wheel forces by their own sweep (``compiled.wheel_lateral_forces_batch``,
+  for unlimited grip).
+
+The per-snake step, reset and observation of a snake beyond the lanes' angle range (1e5 rad, after
+thousands of turns) compile in the parent if that ever happens.
+
+The parent loads each from the cache when it first needs it (waiting for this process before the
+first :func:`~snake_env.physics.stepping._finish_rows`). Every model and settings tuple has the same
+numba types (``compiled.kernel_model`` and ``stepping.step_settings`` fix them), so compiling for one
+Snake5 serves every env.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from snake_env.dynamics import compiled
+from snake_env.physics import stepping
+
+
+@njit(error_model="numpy")  # not cached: it exists for its callee's compile, which numba caches
+def _later_stages(model, s, nl, dt, inv_tol, v_ref):
+    """Types the call of the RK4 stages after the first exactly as ``compiled.rk4_lanes_estimate`` makes
+    it (``first`` the literal False), so that specialisation of ``rk4_stage_lanes`` gets compiled."""
+    compiled.rk4_stage_lanes(model, s, nl, compiled._STAGE[2], False, dt, compiled._STAGE[0], inv_tol, v_ref)
+
+
+def compile_lane_parts(model, n: int) -> None:
+    """Two parts of the lane kernel the parent compiles at once: the traction pass
+    (``compiled._traction_lanes``) and the RK4 stage after the first (one of the two specialisations of
+    ``compiled.rk4_stage_lanes``), in the order the parent's compile asks for them, which then loads
+    what this process has cached by then (its compile is ~40 % stages; a race: a part the parent asks
+    for first it compiles itself)."""
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip, rotor = model
+    s = np.zeros(compiled.lanes_scratch_size(n))
+    compiled._traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, np.uint64(1))
+    _later_stages(model, s, 1, 0.01, 100.0, 0.1)
+
+
+def compile_rare_kernels(model, settings, n: int) -> None:
+    """Compile (or load from the cache) the kernels named in the module doc by calling them on a batch of
+    one snake with nothing left to finish (aux[AUX_REFINEMENTS] = 0), so they compute nothing."""
+    q = np.zeros((1, n + 2))
+    u = np.zeros((1, 2))
+    torques = np.zeros((1, n - 1))
+    obs = np.zeros((1, stepping.observation_size(n, False)))
+    aux = np.zeros((1, stepping.AUX_SIZE))
+    forces = np.zeros((1, n))
+    scale = np.ones(1)
+    stepping._finish_rows(model, settings, q, u, torques, obs, aux, forces, scale)
+    compiled.wheel_lateral_forces_batch(model, q, u, torques, forces, scale)
+
+
+def main() -> None:
+    n = 5  # every n has the same numba types
+    model = compiled.kernel_model(np.ones(n), np.full(n, 0.1), np.full(n, 1.0 / 300.0), np.zeros(n - 1),
+                                  np.zeros(n), wheel_grip=np.full(n, 9.81), rotor_inertia=np.empty(0))
+    settings = stepping.step_settings(0.01, 4, False, 1e-2, 1e-3, 1e-2, 6)
+    compile_lane_parts(model, n)
+    compile_rare_kernels(model, settings, n)
+
+
+if __name__ == "__main__":
+    main()
