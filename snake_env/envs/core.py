@@ -126,7 +126,8 @@ class SnakeBatch:
 
     def __init__(self, task: Task, config: PhysicsConfig, num_envs: int):
         physics.stepping.announce_compile()  # never a silent first-run wait
-        physics.stepping.compile_in_background()  # the rarely needed kernels, beside this process's compile
+        # the kernels only some steps need, in a second process beside this one's compile
+        physics.stepping.compile_in_background(unlimited_grip=config.wheel_friction is None)
         self.task = task
         self.config = config
         self.model, self.params = config.build()

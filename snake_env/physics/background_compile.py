@@ -5,10 +5,10 @@ are not cached yet. Numba compiles one function at a time per process; this seco
 this order:
 
 * two parts of the lane kernel the parent needs for its first step (:func:`compile_lane_parts`);
-* the kernels only some steps need (:func:`compile_rare_kernels`):
-  :func:`~snake_env.physics.stepping._finish_rows` (refinement of the snakes that fail the step check,
-  or their step undone) and the wheel forces by their own sweep (``compiled.wheel_lateral_forces_batch``,
-  for unlimited grip).
+* with ``--unlimited-grip``, the wheel forces by their own sweep (``compiled.wheel_lateral_forces_batch``),
+  which an env whose wheels never slip needs at its first step;
+* the kernel only some steps need, :func:`~snake_env.physics.stepping._finish_rows` (refinement of the
+  snakes that fail the step check, or their step undone).
 
 The per-snake step, reset and observation of a snake beyond the lanes' angle range (1e5 rad, after
 thousands of turns) compile in the parent if that ever happens.
@@ -20,6 +20,8 @@ Snake5 serves every env.
 """
 
 from __future__ import annotations
+
+import sys
 
 import numpy as np
 from numba import njit
@@ -47,7 +49,7 @@ def compile_lane_parts(model, n: int) -> None:
     _later_stages(model, s, 1, 0.01, 100.0, 0.1)
 
 
-def compile_rare_kernels(model, settings, n: int) -> None:
+def compile_rare_kernels(model, settings, n: int, unlimited_grip: bool) -> None:
     """Compile (or load from the cache) the kernels named in the module doc by calling them on a batch of
     one snake with nothing left to finish (aux[AUX_REFINEMENTS] = 0), so they compute nothing."""
     q = np.zeros((1, n + 2))
@@ -57,8 +59,9 @@ def compile_rare_kernels(model, settings, n: int) -> None:
     aux = np.zeros((1, stepping.AUX_SIZE))
     forces = np.zeros((1, n))
     scale = np.ones(1)
+    if unlimited_grip:
+        compiled.wheel_lateral_forces_batch(model, q, u, torques, forces, scale)
     stepping._finish_rows(model, settings, q, u, torques, obs, aux, forces, scale)
-    compiled.wheel_lateral_forces_batch(model, q, u, torques, forces, scale)
 
 
 def main() -> None:
@@ -67,7 +70,7 @@ def main() -> None:
                                   np.zeros(n), wheel_grip=np.full(n, 9.81), rotor_inertia=np.empty(0))
     settings = stepping.step_settings(0.01, 4, False, 1e-2, 1e-3, 1e-2, 6)
     compile_lane_parts(model, n)
-    compile_rare_kernels(model, settings, n)
+    compile_rare_kernels(model, settings, n, "--unlimited-grip" in sys.argv[1:])
 
 
 if __name__ == "__main__":

@@ -733,8 +733,9 @@ def _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, ind
     """Snakes index[start:start+nl] whose lane attempt failed (PENDING_LANE): each is integrated again
     from its pre-step state by the per-snake kernel from one halving on (:func:`_integrate_checked`), or
     undone (a fold, or no refinements allowed); then observed and stored in lanes exactly as a passing
-    lane is, so a snake's result does not depend on its batch. With ``forces`` not empty, its wheel forces
-    and traction scale by their own sweep (:func:`_step_forces`)."""
+    lane is, so a snake's result does not depend on its batch. With ``forces`` not empty (finite grip:
+    see step_inplace), its wheel forces and traction scale by their own sweep, as
+    ``compiled.wheel_lateral_forces`` gives them with grip (without compiling its unlimited-grip sweep)."""
     sim_dt, frame_skip, include_position, tol, e_floor, err_tol, max_ref = settings
     n = model[0].shape[0]
     _load_pre_step(model, total_mass, q, u, torques, index, start, nl, s)
@@ -743,6 +744,7 @@ def _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, ind
     residuals = np.zeros(nl)
     q1 = np.empty(n + 2)
     u1 = np.empty(2)
+    no_du = np.empty(0)
     for l in range(nl):
         lane = _U(l)
         b = index[start + l]
@@ -770,14 +772,14 @@ def _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, ind
         b = index[start + l]
         _store_lane(settings, s, _U(l), n, b, q, u, obs, aux, codes[l], refinements[l], residuals[l])
         if forces.shape[0] > 0:
-            _step_forces(model, q, u, torques, b, forces, scale, links, dq, du)
+            scale[b] = compiled.traction_derivatives(model, q[b], u[b], torques[b], dq, du, links, forces[b], 1.0,
+                                                     no_du)[1]
 
 
 @njit(cache=True, nogil=True)
 def _step_forces(model, q, u, torques, b, forces, scale, links, dq, du):
     """Snake b's wheel forces and traction scale at its current state by their own sweep
-    (compiled.wheel_lateral_forces), for a snake the lanes did not finish: refined, undone or
-    stepped alone."""
+    (compiled.wheel_lateral_forces), for a snake stepped alone (beyond the lanes' range)."""
     scale[b] = compiled.wheel_lateral_forces(model, q[b], u[b], torques[b], links, dq, du, forces[b])
 
 
@@ -1131,15 +1133,17 @@ _background = None  # the child process (subprocess.Popen) until awaited
 _background_started = False
 
 
-def compile_in_background() -> bool:
+def compile_in_background(unlimited_grip: bool = False) -> bool:
     """Start :mod:`snake_env.physics.background_compile` once per process if :func:`_finish_rows` is not
-    compiled or cached yet; True if started."""
+    compiled or cached yet; with ``unlimited_grip`` (the env's wheels never slip) it compiles the wheel
+    forces' own sweep too, which such an env needs at its first step. True if started."""
     global _background, _background_started
     if _background_started or _finish_rows.signatures or _cached(_finish_rows):
         return False
     _background_started = True
     try:
-        _background = subprocess.Popen([sys.executable, "-m", "snake_env.physics.background_compile"],
+        _background = subprocess.Popen([sys.executable, "-m", "snake_env.physics.background_compile"]
+                                       + (["--unlimited-grip"] if unlimited_grip else []),
                                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                        stderr=subprocess.DEVNULL)
     except OSError:  # no process to spare: the kernels compile here when first needed
