@@ -13,6 +13,8 @@ this order:
 The per-snake step, reset and observation of a snake beyond the lanes' angle range (1e5 rad, after
 thousands of turns) compile in the parent if that ever happens.
 
+One such process compiles at a time per cache (a lock file, :func:`lock_path`): the others, started by
+other processes meanwhile (e.g. SubprocVecEnv workers), wait for it and then load what it cached.
 The parent loads each from the cache when it first needs it (waiting for this process before the
 first :func:`~snake_env.physics.stepping._finish_rows`). Every model and settings tuple has the same
 numba types (``compiled.kernel_model`` and ``stepping.step_settings`` fix them), so compiling for one
@@ -21,7 +23,10 @@ Snake5 serves every env.
 
 from __future__ import annotations
 
+import hashlib
+import os
 import sys
+import tempfile
 
 import numpy as np
 from numba import njit
@@ -64,7 +69,30 @@ def compile_rare_kernels(model, settings, n: int, unlimited_grip: bool) -> None:
     stepping._finish_rows(model, settings, q, u, torques, obs, aux, forces, scale)
 
 
+def lock_path() -> str:
+    """The lock file of the cache this process compiles into: one per snake_env source tree and
+    NUMBA_CACHE_DIR (numba's cache location follows from both)."""
+    key = f"{os.path.abspath(stepping.__file__)}|{os.environ.get('NUMBA_CACHE_DIR', '')}"
+    return os.path.join(tempfile.gettempdir(), f"snake_env_compile_{hashlib.sha1(key.encode()).hexdigest()[:16]}.lock")
+
+
+def hold_the_lock():
+    """Block until this process holds the compile lock (kept until it exits); the open file, or None
+    where file locks are unavailable (then compiles may overlap, which is only slower)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        return None
+    try:
+        handle = open(lock_path(), "a")
+        fcntl.flock(handle, fcntl.LOCK_EX)
+    except OSError:
+        return None
+    return handle
+
+
 def main() -> None:
+    lock = hold_the_lock()  # noqa: F841 (held until exit)
     n = 5  # every n has the same numba types
     model = compiled.kernel_model(np.ones(n), np.full(n, 0.1), np.full(n, 1.0 / 300.0), np.zeros(n - 1),
                                   np.zeros(n), wheel_grip=np.full(n, 9.81), rotor_inertia=np.empty(0))

@@ -1138,8 +1138,8 @@ def compile_in_background(unlimited_grip: bool = False) -> bool:
     compiled or cached yet; with ``unlimited_grip`` (the env's wheels never slip) it compiles the wheel
     forces' own sweep too, which such an env needs at its first step. True if started."""
     global _background, _background_started
-    if _background_started or _finish_rows.signatures or _cached(_finish_rows):
-        return False
+    if _background_started or _finish_rows.signatures or getattr(sys, "frozen", False) or _cached(_finish_rows):
+        return False  # (a frozen app's sys.executable is the app, not Python)
     _background_started = True
     try:
         _background = subprocess.Popen([sys.executable, "-m", "snake_env.physics.background_compile"]

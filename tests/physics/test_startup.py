@@ -57,3 +57,21 @@ def test_the_rarely_needed_kernels_compile_in_a_background_process(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     hits, misses = map(int, run.stdout.split())
     assert (hits, misses) == (1, 0)  # loaded from what the background process cached, not compiled here
+
+
+def test_one_background_compile_at_a_time():
+    """A background compile waits while another holds the cache's lock (SubprocVecEnv workers each start
+    one), then runs (loading what the other cached; here the cache is warm) and exits cleanly."""
+    import fcntl
+    import time
+
+    from snake_env.physics import background_compile
+
+    with open(background_compile.lock_path(), "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        child = subprocess.Popen([sys.executable, "-m", "snake_env.physics.background_compile"],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(3.0)
+        assert child.poll() is None, child.communicate()  # still waiting for the lock
+    out, err = child.communicate(timeout=600)
+    assert child.returncode == 0, err[-2000:]
