@@ -679,6 +679,16 @@ def _total_mass(m):
     return total
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _lane_rows(q, aux):
+    """(index, count) of ``compiled.split_lanes(q)``, the rows beyond the lanes' range marked
+    aux[AUX_REFINEMENTS] = PENDING_ALONE."""
+    index, count = compiled.split_lanes(q)
+    for i in range(count, q.shape[0]):
+        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    return index, count
+
+
 @njit(cache=True, nogil=True)
 def _step_lanes(model, settings, q, u, torques, obs, aux, forces, scale):
     """The first attempt of the env step of B snakes on one thread, in lane groups of compiled.LANES
@@ -688,9 +698,7 @@ def _step_lanes(model, settings, q, u, torques, obs, aux, forces, scale):
     (B,): the wheel forces and traction scale at the step's end with finite grip, or empty arrays for none."""
     m = model[0]
     n = m.shape[0]
-    index, count = compiled.split_lanes(q)
-    for i in range(count, q.shape[0]):
-        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    index, count = _lane_rows(q, aux)
     s = np.empty(compiled.lanes_scratch_size(n))
     total_mass = _total_mass(m)
     pending = 0
@@ -705,9 +713,7 @@ def _step_lanes_parallel(model, settings, q, u, torques, obs, aux, forces, scale
     """:func:`_step_lanes` with the lane groups spread over threads."""
     m = model[0]
     n = m.shape[0]
-    index, count = compiled.split_lanes(q)
-    for i in range(count, q.shape[0]):
-        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    index, count = _lane_rows(q, aux)
     size = compiled.lanes_scratch_size(n)
     total_mass = _total_mass(m)
     groups = (count + _LANES - 1) // _LANES
@@ -916,9 +922,7 @@ def _reset_lanes(model, settings, noise, q, u, obs, aux):
     to :func:`_reset_alone` (angles beyond the lanes' range), marked aux[AUX_REFINEMENTS] = PENDING_ALONE."""
     m = model[0]
     n = m.shape[0]
-    index, count = compiled.split_lanes(noise)  # the angles are noise[:, :n]
-    for i in range(count, noise.shape[0]):
-        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    index, count = _lane_rows(noise, aux)  # the angles are noise[:, :n]
     s = np.empty(compiled.lanes_scratch_size(n))
     total_mass = _total_mass(m)
     for start in range(0, count, _LANES):
@@ -953,9 +957,7 @@ def _observe_rows_lanes(model, settings, q, u, obs, aux):
     left to :func:`_observe_alone`, marked aux[AUX_REFINEMENTS] = PENDING_ALONE."""
     m = model[0]
     n = m.shape[0]
-    index, count = compiled.split_lanes(q)
-    for i in range(count, q.shape[0]):
-        aux[index[i], AUX_REFINEMENTS] = PENDING_ALONE
+    index, count = _lane_rows(q, aux)
     s = np.empty(compiled.lanes_scratch_size(n))
     total_mass = _total_mass(m)
     for start in range(0, count, _LANES):
