@@ -708,27 +708,6 @@ def _step_lanes(model, settings, q, u, torques, obs, aux, forces, scale):
     return pending, q.shape[0] - count
 
 
-@njit(cache=True, parallel=True)
-def _step_lanes_parallel(model, settings, q, u, torques, obs, aux, forces, scale):
-    """:func:`_step_lanes` with the lane groups spread over threads."""
-    m = model[0]
-    n = m.shape[0]
-    index, count = _lane_rows(q, aux)
-    size = compiled.lanes_scratch_size(n)
-    total_mass = _total_mass(m)
-    groups = (count + _LANES - 1) // _LANES
-    left = np.zeros(groups, np.int64)  # per group, not a prange reduction: parfors cannot reduce over the inlined group
-    for group in prange(groups):
-        start = group * _LANES
-        s = np.empty(size)
-        left[group] = _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
-                                       min(_LANES, count - start), s, forces, scale)
-    pending = 0
-    for group in range(groups):
-        pending += left[group]
-    return pending, q.shape[0] - count
-
-
 # ---------------------------------------------------------------------- what the lanes left
 # The refinement and the per-snake path compile on their own (:func:`_finish_rows`), so the first step
 # compiles only the lane kernel; a background process compiles them meanwhile (compile_in_background).
@@ -834,18 +813,32 @@ def _finish_rows(model, settings, q, u, torques, obs, aux, forces, scale):
 
 
 @njit(cache=True, parallel=True)
-def _finish_rows_parallel(model, settings, q, u, torques, obs, aux, forces, scale):
-    """:func:`_finish_rows` with the lane groups spread over threads."""
+def _step_lanes_parallel(model, settings, q, u, torques, obs, aux, forces, scale):
+    """:func:`_step_lanes` with the lane groups spread over threads, each group finishing its own failed
+    snakes as :func:`_finish_rows` does (the same bits): one parallel region per step, since each region
+    waits for a free core (see PARALLEL_MIN_WORK), and large batches refine every step. Compiled on the
+    first large batch with more than one thread, refinement included. Returns (0, snakes left to
+    :func:`_step_alone`)."""
     m = model[0]
     n = m.shape[0]
-    index, count = _pending_lanes(aux)
+    index, count = _lane_rows(q, aux)
     size = compiled.lanes_scratch_size(n)
     total_mass = _total_mass(m)
     for group in prange((count + _LANES - 1) // _LANES):
         start = group * _LANES
-        _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start,
-                           min(_LANES, count - start), np.empty(size), forces, scale,
-                           np.empty((n, compiled.LINK_CHANNELS)), np.empty(n + 2), np.empty(2))
+        nl = min(_LANES, count - start)
+        s = np.empty(size)
+        if _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s,
+                            forces, scale) > 0:
+            left = np.empty(nl, np.int64)
+            k = 0
+            for l in range(nl):
+                if aux[index[start + l], AUX_REFINEMENTS] == PENDING_LANE:
+                    left[k] = index[start + l]
+                    k += 1
+            _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, left, 0, k, s, forces,
+                               scale, np.empty((n, compiled.LINK_CHANNELS)), np.empty(n + 2), np.empty(2))
+    return 0, q.shape[0] - count
 
 
 @njit(cache=True, nogil=True)
@@ -1042,11 +1035,10 @@ def step_inplace(params: PhysicsParams, q, u, torques, obs, aux, forces=None, sc
                                                                           aux, lane_forces, lane_scale)
     if alone:
         _step_alone(model, settings, q, u, torques, obs, aux, lane_forces, lane_scale)
-    if pending:
+    if pending:  # (never threaded: the parallel kernel finishes its own)
         if _background is not None and not _finish_rows.signatures:
             _await_background_compile()
-        (_finish_rows_parallel if threaded else _finish_rows)(model, settings, q, u, torques, obs, aux,
-                                                               lane_forces, lane_scale)
+        _finish_rows(model, settings, q, u, torques, obs, aux, lane_forces, lane_scale)
     if forces is not None and not gripped:
         compiled.wheel_lateral_forces_batch(model, q, u, torques, forces, scale)
 

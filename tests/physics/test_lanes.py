@@ -90,8 +90,8 @@ def test_observation_of_a_stepped_state_equals_observe(rng):
 
 
 def test_threaded_lane_step_equals_the_serial_one(rng, monkeypatch):
-    """The threaded kernels (used for very large batches: _step_lanes_parallel, then
-    _finish_rows_parallel for the rows it left) give the serial kernels' bits."""
+    """The threaded kernel (used for very large batches: _step_lanes_parallel, each lane group finishing
+    its own failed snakes) gives the serial kernels' bits (_step_lanes, then _finish_rows)."""
     env = SnakeEnv(n_links=4)
     p = env.params
     B = 3 * compiled.LANES + 1
