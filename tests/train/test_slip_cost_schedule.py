@@ -142,8 +142,10 @@ def test_bad_schedule_arguments_are_one_line_config_errors(kwargs, pattern):
 
 
 @pytest.mark.parametrize("override", [[], ["env_kwargs.slip_cost_weight=0"]])
-def test_schedule_needs_a_configured_weight(override):
-    config = cfg.build_config("ppo", "snake_env/Snake12-v3", overrides=override)  # an entry without the cost
+def test_schedule_needs_a_configured_weight(override, tmp_path):
+    entry = tmp_path / "ppo.yaml"  # an entry without the cost, whatever the shipped entries hold
+    entry.write_text(f"{ENV}:\n  n_envs: 2\n")
+    config = cfg.build_config("ppo", ENV, config_path=entry, overrides=override)
     config["callback"] = [NAME]
     with pytest.raises(cfg.ConfigError, match="SlipCostSchedule needs env_kwargs slip_cost_weight > 0") as info:
         cfg.validate(config)
