@@ -343,14 +343,15 @@ def validate(config: dict) -> dict:
     if config["callback"] is not None:
         from snake_env.train.callbacks import ResidualBurnIn, SlipCostSchedule
 
-        if any(isinstance(c, SlipCostSchedule) for c in make_callbacks(config)):
+        callbacks = make_callbacks(config)
+        if any(isinstance(c, SlipCostSchedule) for c in callbacks):
             weight = config["env_kwargs"].get("slip_cost_weight", 0.0)
             if isinstance(weight, bool) or not isinstance(weight, numbers.Real) or not weight > 0:
                 raise ConfigError(f"callback SlipCostSchedule needs env_kwargs slip_cost_weight > 0 (the weight "
                                   f"it ramps to), got {weight!r}")
 
         # SAC's default learning_starts is 100
-        burn_ins = [c for c in make_callbacks(config) if isinstance(c, ResidualBurnIn)]
+        burn_ins = [c for c in callbacks if isinstance(c, ResidualBurnIn)]
         if burn_ins and algo == "sac" and config.get("learning_starts", 100) != 0:
             raise ConfigError(f"callback ResidualBurnIn needs learning_starts: 0 (SB3 acts at random before "
                               f"learning_starts), got {config.get('learning_starts', 100)!r}")

@@ -784,11 +784,11 @@ def _step_alone(model, settings, q, u, torques, obs, aux, forces, scale):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _pending_lanes(aux):
-    """(index, count) of the rows marked PENDING_LANE."""
-    index = np.empty(aux.shape[0], np.int64)
+def _pending_lanes(aux, rows):
+    """(index, count): the rows among ``rows`` (row numbers) marked PENDING_LANE, in order."""
+    index = np.empty(rows.shape[0], np.int64)
     count = 0
-    for b in range(aux.shape[0]):
+    for b in rows:
         if aux[b, AUX_REFINEMENTS] == PENDING_LANE:
             index[count] = b
             count += 1
@@ -801,7 +801,7 @@ def _finish_rows(model, settings, q, u, torques, obs, aux, forces, scale):
     the per-snake kernel, or the step undone. ``forces``, ``scale``: as given to _step_lanes."""
     m = model[0]
     n = m.shape[0]
-    index, count = _pending_lanes(aux)
+    index, count = _pending_lanes(aux, np.arange(aux.shape[0]))
     links = np.empty((n, compiled.LINK_CHANNELS))
     dq = np.empty(n + 2)
     du = np.empty(2)
@@ -830,12 +830,7 @@ def _step_lanes_parallel(model, settings, q, u, torques, obs, aux, forces, scale
         s = np.empty(size)
         if _step_lane_group(model, settings, total_mass, q, u, torques, obs, aux, index, start, nl, s,
                             forces, scale) > 0:
-            left = np.empty(nl, np.int64)
-            k = 0
-            for l in range(nl):
-                if aux[index[start + l], AUX_REFINEMENTS] == PENDING_LANE:
-                    left[k] = index[start + l]
-                    k += 1
+            left, k = _pending_lanes(aux, index[start:start + nl])
             _finish_lane_group(model, settings, total_mass, q, u, torques, obs, aux, left, 0, k, s, forces,
                                scale, np.empty((n, compiled.LINK_CHANNELS)), np.empty(n + 2), np.empty(2))
     return 0, q.shape[0] - count
