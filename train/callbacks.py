@@ -36,11 +36,12 @@ def save_snapshot(model, model_path, vecnormalize_path, replay_buffer_path=None)
     """Write the model, its normalization statistics and (off-policy) replay
     buffer; the statistics go first so a model file never exists without them."""
     vec_normalize = vecnormalize_of(model)
-    if vec_normalize is not None:
-        atomic.save_vecnormalize(vec_normalize, vecnormalize_path)
-    if replay_buffer_path is not None and getattr(model, "replay_buffer", None) is not None:
-        atomic.save_replay_buffer(model, replay_buffer_path)
-    atomic.save_model(model, model_path)
+    with atomic.interrupts_deferred():  # the whole snapshot, so an interrupt never splits it
+        if vec_normalize is not None:
+            atomic.save_vecnormalize(vec_normalize, vecnormalize_path)
+        if replay_buffer_path is not None and getattr(model, "replay_buffer", None) is not None:
+            atomic.save_replay_buffer(model, replay_buffer_path)
+        atomic.save_model(model, model_path)
 
 
 def save_checkpoint(model, directory) -> Path:

@@ -125,14 +125,18 @@ _stopping = False  # an interrupt has been raised: the run is saving what it mad
 
 
 def _interrupt(signum, frame):
-    """The first Ctrl-C (SIGINT) or SIGTERM ends training with KeyboardInterrupt; any further one while
-    the run saves its model and checkpoint is ignored, so the save is never cut short."""
+    """The first Ctrl-C (SIGINT) or SIGTERM ends training with KeyboardInterrupt, held until a save in
+    progress ends (:func:`snake_env.train.atomic.defer_interrupt`); any further one while the run saves
+    its model and checkpoint is ignored, so the save is never cut short."""
+    from snake_env.train import atomic
+
     global _stopping
     if _stopping:
         print("snake_env: interrupted; saving what the run made, please wait", file=sys.stderr, flush=True)
         return
     _stopping = True
-    raise KeyboardInterrupt(f"signal {signum}")
+    if not atomic.defer_interrupt(signum):
+        raise KeyboardInterrupt(f"signal {signum}")
 
 
 def install_interrupt_handlers() -> None:

@@ -68,6 +68,30 @@ def test_resume_continues_from_the_newest_checkpoint(tmp_path, algo, capsys):
     assert (run_dir / "config.yaml").read_text() == config_before
 
 
+def test_an_interrupt_during_a_save_is_raised_when_the_save_ends(tmp_path, monkeypatch):
+    """A Ctrl-C inside a checkpoint's torch.save used to break the zip writer, whose RuntimeError then
+    replaced the KeyboardInterrupt (exit 1, no final model). The signal handler now holds it until the
+    snapshot is written whole; a second signal meanwhile is ignored."""
+    from stable_baselines3 import PPO
+
+    from snake_env.train import train as train_module
+    from snake_env.train.callbacks import save_snapshot
+
+    monkeypatch.setattr(train_module, "_stopping", False)
+    model = PPO("MlpPolicy", "Pendulum-v1", n_steps=64, batch_size=64, device="cpu")
+    original = model.policy.state_dict
+
+    def interrupted_midway(*args, **kwargs):  # the signals arrive while the model is being written
+        train_module._interrupt(signal.SIGINT, None)
+        train_module._interrupt(signal.SIGTERM, None)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(model.policy, "state_dict", interrupted_midway)
+    with pytest.raises(KeyboardInterrupt, match=f"signal {int(signal.SIGINT)}"):
+        save_snapshot(model, tmp_path / "model.zip", tmp_path / "vecnormalize.pkl")
+    PPO.load(tmp_path / "model.zip", device="cpu")  # written whole before the interrupt was raised
+
+
 def test_sigint_saves_model_and_statistics(tmp_path):
     """Even when started with SIGINT ignored (a background job of a
     non-interactive shell), Ctrl-C saves the model and exits with 130; a second
