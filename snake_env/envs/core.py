@@ -11,6 +11,7 @@ vector env equals N single envs step by step.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import fields, replace
 
@@ -128,6 +129,8 @@ class SnakeBatch:
         physics.stepping.announce_compile()  # never a silent first-run wait
         # the kernels only some steps need, in a second process beside this one's compile
         physics.stepping.compile_in_background(unlimited_grip=config.wheel_friction is None)
+        # the first step's task kernels compile before its physics while that process is at work (_warm_up)
+        self._warm_up_pending = physics.stepping.background_compile_running()
         self.task = task
         self.config = config
         self.model, self.params = config.build()
@@ -245,6 +248,8 @@ class SnakeBatch:
         and the costs); the common values are left in ``common_values`` and ``failed``, the wheels' (with
         grip) in ``wheel_force``, ``slip`` and ``traction_scale``."""
         a = actions if checked else action_array(actions, self.torques.shape)
+        if self._warm_up_pending:
+            self._warm_up()
         if not _clip_scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev):
             raise ValueError(NOT_FINITE_ACTION)
         self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *self._grip_buffers)
@@ -275,6 +280,19 @@ class SnakeBatch:
                 if key.startswith("reward_"):
                     extras[key] = np.where(failed, 0.0, extras[key])
         return rewards, terminated, extras
+
+    def _warm_up(self) -> None:
+        """Evaluate the task and the common values once on a copy of the current (reset) state, results
+        discarded, so that their kernels compile before the first step's physics. The first step of a
+        process may wait for the background compile of the refinement kernel (physics.stepping); without
+        this the task's ~1.5 s compile would follow that wait, and with it the two compiles overlap."""
+        self._warm_up_pending = False
+        copies = {field.name: np.array(getattr(self._context, field.name)) for field in fields(self._context)
+                  if isinstance(getattr(self._context, field.name), np.ndarray)}
+        context = replace(self._context, **copies)
+        self.task.evaluate(self.config, context, copy.deepcopy(self.task_state))
+        wheels = None if self._wheels is None else tuple(np.array(a) for a in self._wheels)
+        common_step_values(context, np.empty_like(self.common_values), np.zeros_like(self.failed), wheels)
 
     def set_slip_cost_weight(self, weight: float) -> Task:
         """Make the slip cost's weight ``weight`` (per m g of excess, >= 0) from the next step on: the task

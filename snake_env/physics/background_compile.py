@@ -16,7 +16,9 @@ thousands of turns) compile in the parent if that ever happens.
 One such process compiles at a time per cache (a lock file, :func:`lock_path`): the others, started by
 other processes meanwhile (e.g. SubprocVecEnv workers), wait for it and then load what it cached.
 The parent loads each from the cache when it first needs it (waiting for this process before the
-first :func:`~snake_env.physics.stepping._finish_rows`). Every model and settings tuple has the same
+first :func:`~snake_env.physics.stepping._finish_rows`). On POSIX this process says "done" on a pipe
+(``--done-fd``) once every kernel is cached, so the parent does not wait for its exit as well (~0.4 s
+of numba and LLVM teardown). Every model and settings tuple has the same
 numba types (``compiled.kernel_model`` and ``stepping.step_settings`` fix them), so compiling for one
 Snake5 serves every env.
 """
@@ -99,6 +101,8 @@ def main() -> None:
     settings = stepping.step_settings(0.01, 4, False, 1e-2, 1e-3, 1e-2, 6)
     compile_lane_parts(model, n)
     compile_rare_kernels(model, settings, n, "--unlimited-grip" in sys.argv[1:])
+    if "--done-fd" in sys.argv[1:]:  # every kernel is cached: the parent need not wait for this exit (~0.4 s)
+        os.write(int(sys.argv[sys.argv.index("--done-fd") + 1]), b"d")
 
 
 if __name__ == "__main__":

@@ -108,6 +108,22 @@ def test_deterministic_under_seed(env_id, kwargs):
     assert a.shape != c.shape or not np.array_equal(a, c)
 
 
+@pytest.mark.parametrize("env_id, kwargs", CASES + [("snake_env/Snake5-v3", {"slip_cost_weight": 1.0})],
+                         ids=IDS + ["Snake5-slip"])
+def test_the_first_steps_warm_up_changes_nothing(env_id, kwargs):
+    """While a background compile runs, the first step evaluates the task once on a copy of the state
+    (SnakeBatch._warm_up) to compile its kernels early: the rollout is the same bit for bit."""
+    plain = gym.make(env_id, **kwargs)
+    warmed = gym.make(env_id, **kwargs)
+    calls = []
+    batch = warmed.unwrapped._batch
+    batch._warm_up_pending = True
+    evaluate = batch.task.evaluate
+    batch.task.__dict__["evaluate"] = lambda *args: calls.append(1) or evaluate(*args)  # (a frozen dataclass)
+    assert np.array_equal(_rollout(plain, 3), _rollout(warmed, 3))
+    assert len(calls) == 61 and not batch._warm_up_pending  # 60 steps and the warm-up
+
+
 def _row(obs, i):
     return {k: v[i] for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
 

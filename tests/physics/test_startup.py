@@ -75,3 +75,21 @@ def test_one_background_compile_at_a_time():
         assert child.poll() is None, child.communicate()  # still waiting for the lock
     out, err = child.communicate(timeout=600)
     assert child.returncode == 0, err[-2000:]
+
+
+def test_awaiting_a_background_compile_that_exits_without_saying_done_returns():
+    """The parent waits on the child's pipe; a child that exits without writing (a crash) closes it, and
+    the wait returns at once (the kernels then compile in this process when first needed)."""
+    from snake_env.physics import stepping
+
+    read, write = os.pipe()
+    child = subprocess.Popen([sys.executable, "-c", "pass"], pass_fds=(write,))
+    os.close(write)
+    saved = stepping._background, stepping._background_done
+    stepping._background, stepping._background_done = child, read
+    try:
+        stepping._await_background_compile()
+        assert stepping._background is None and stepping._background_done is None
+    finally:
+        stepping._background, stepping._background_done = saved
+    assert child.wait(timeout=60) == 0
