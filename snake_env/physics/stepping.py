@@ -1031,14 +1031,21 @@ def step_inplace(params: PhysicsParams, q, u, torques, obs, aux, forces=None, sc
     threaded = _threaded(q)
     pending, alone = (_step_lanes_parallel if threaded else _step_lanes)(model, settings, q, u, torques, obs,
                                                                           aux, lane_forces, lane_scale)
+    if pending or alone:
+        _finish_step(model, settings, q, u, torques, obs, aux, lane_forces, lane_scale, pending, alone)
+    if forces is not None and not gripped:
+        compiled.wheel_lateral_forces_batch(model, q, u, torques, forces, scale)
+
+
+def _finish_step(model, settings, q, u, torques, obs, aux, forces, scale, pending, alone) -> None:
+    """The rows :func:`_step_lanes` left: ``alone`` ones by the per-snake kernel, ``pending`` ones
+    refined or undone by :func:`_finish_rows` (loaded from the background compile's cache)."""
     if alone:
-        _step_alone(model, settings, q, u, torques, obs, aux, lane_forces, lane_scale)
+        _step_alone(model, settings, q, u, torques, obs, aux, forces, scale)
     if pending:  # (never threaded: the parallel kernel finishes its own)
         if _background is not None and not _finish_rows.signatures:
             _await_background_compile()
-        _finish_rows(model, settings, q, u, torques, obs, aux, lane_forces, lane_scale)
-    if forces is not None and not gripped:
-        compiled.wheel_lateral_forces_batch(model, q, u, torques, forces, scale)
+        _finish_rows(model, settings, q, u, torques, obs, aux, forces, scale)
 
 
 def reset(params: PhysicsParams, noise):
@@ -1198,6 +1205,11 @@ class InstantPhysics:
         self.grip = config.grip()
         self.wheel_load = config.wheel_load()
         self.draws: dict[str, np.ndarray] = {}
+        # finite grip and a batch too small for threads (the single env): step_inplace's path without its
+        # per-step choices, ~0.5 us of a ~12 us single-env step
+        self._lanes_alone = (params.kernel_model[11].shape[0] > 0
+                             and num_envs * (config.n_links + 2) < PARALLEL_MIN_WORK)
+        self._model, self._settings = params.kernel_model, params.kernel_settings
 
     def reset(self, rows, noise, rng):
         """(q, u, obs, aux) of the new episodes of ``rows`` from their start ``noise`` (rows, n+2)."""
@@ -1207,7 +1219,12 @@ class InstantPhysics:
         return observe(self.params, q, u)
 
     def step(self, q, u, torques, obs, aux, forces=None, scale=None):
-        step_inplace(self.params, q, u, torques, obs, aux, forces, scale)
+        if self._lanes_alone and forces is not None:
+            pending, alone = _step_lanes(self._model, self._settings, q, u, torques, obs, aux, forces, scale)
+            if pending or alone:
+                _finish_step(self._model, self._settings, q, u, torques, obs, aux, forces, scale, pending, alone)
+        else:
+            step_inplace(self.params, q, u, torques, obs, aux, forces, scale)
 
     def held_torques(self, torques):
         """The torques (N m) held over the last substep of every row."""
