@@ -1092,7 +1092,7 @@ def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out, scale) -> No
 
 # Said once per process on stderr before the first step compiles the kernels: measured 11-16 s from an
 # empty cache on the idle 2-core machine (docs/benchmarks.md, cold start); numba caches the result on disk.
-COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 15 s on a "
+COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 10-15 s on a "
                   "2-core machine; cached afterwards)")
 _compile_announced = False
 
