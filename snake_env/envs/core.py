@@ -21,7 +21,7 @@ from numba import njit
 
 from snake_env.tasks import Task, task_class
 from snake_env.tasks.base import (ACTUATOR_POWER_ROW, COMMON_STEP_INFO_KEYS, COMMON_VALUE_KEYS, StepContext,
-                                  common_reset_info, common_step_values)
+                                  bind_common_step_values, common_reset_info, common_step_values)
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
@@ -171,11 +171,30 @@ class SnakeBatch:
         # COMMON_VALUE_KEYS) and failed rows; step() hands out copies, step_first() Python scalars
         self.common_values = np.empty((len(COMMON_VALUE_KEYS), B))
         self.failed = np.zeros(B, np.bool_)
-        # row 0's views, read by step_first
-        self._first_values = self.common_values[:, 0]
-        self._first_force, self._first_slip = self.wheel_force[0], self.slip[0]
         self._context = StepContext(action=self.torques, torques=self.torques, q_prev=self.q_prev, q=self.q,
                                     u=self.u, aux=self.aux, dt=config.dt)
+        self._bind()
+
+    # made by _bind, again for a copy (a pickled or deep-copied view is an array of its own)
+    _BOUND = ("_first_values", "_first_force", "_first_slip", "_step_physics", "_common_step_values")
+
+    def _bind(self) -> None:
+        """Row 0's views, read by step_first, and the physics step and the common values on this batch's
+        buffers, bound once (no per-call dispatch); again on unpickling and copying, whose copies have
+        buffers of their own."""
+        self._first_values = self.common_values[:, 0]
+        self._first_force, self._first_slip = self.wheel_force[0], self.slip[0]
+        self._step_physics = self.physics.bind_step(self.q, self.u, self.torques, self.physics_obs, self.aux,
+                                                    *self._grip_buffers)
+        self._common_step_values = bind_common_step_values(self._context, self.common_values, self.failed,
+                                                           self._wheels)
+
+    def __getstate__(self):
+        return {key: value for key, value in self.__dict__.items() if key not in self._BOUND}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._bind()
 
     def observation(self):
         """The task's observation of every row (fresh arrays)."""
@@ -252,11 +271,11 @@ class SnakeBatch:
             self._warm_up()
         if not _clip_scale_and_save(a, self.config.max_torque, self.torques, self.q, self.q_prev):
             raise ValueError(NOT_FINITE_ACTION)
-        self.physics.step(self.q, self.u, self.torques, self.physics_obs, self.aux, *self._grip_buffers)
+        self._step_physics()
         ctx = self._context
         ctx.action = a  # every other field is one of this batch's buffers
         rewards, terminated, task_info = self.task.evaluate(self.config, ctx, self.task_state)
-        failures = common_step_values(ctx, self.common_values, self.failed, self._wheels)
+        failures = self._common_step_values()
         extras = task_info
         if self.task.energy_cost_weight:
             # every task: a cost on the actuator power (W; common_step_values), off by default

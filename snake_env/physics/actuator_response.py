@@ -35,6 +35,7 @@ is not used.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -104,6 +105,9 @@ class ActuatorResponse(InstantPhysics):
         self.torque[rows] = 0.0
         self.held[rows] = 0.0
         return super().reset(rows, noise, rng)
+
+    def bind_step(self, q, u, command, obs, aux, forces=None, scale=None):
+        return functools.partial(self.step, q, u, command, obs, aux, forces, scale)
 
     def held_torques(self, torques):
         return self.held

@@ -28,6 +28,7 @@ otherwise, and naming them is then an error.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 
@@ -186,6 +187,9 @@ class RandomizedRobots:
     def held_torques(self, torques):
         """The torque each row held over its last substep (the commanded one without a lag or latency)."""
         return np.concatenate([row.held_torques(torques[b:b + 1]) for b, row in enumerate(self.rows)])
+
+    def bind_step(self, q, u, torques, obs, aux, forces=None, scale=None):
+        return functools.partial(self.step, q, u, torques, obs, aux, forces, scale)
 
     def step(self, q, u, torques, obs, aux, forces=None, scale=None) -> None:
         """Every row stepped with its own robot, in place."""

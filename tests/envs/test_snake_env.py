@@ -1,6 +1,7 @@
 """SnakeEnv: the Gymnasium API contract, input checks, determinism, pickling,
 and the reported quantities cross-checked against the numpy dynamics."""
 
+import copy
 import math
 import pickle
 import subprocess
@@ -201,6 +202,29 @@ def test_pickle_mid_episode_continues_identically(rng):
     env.reset()
     clone.reset()
     np.testing.assert_array_equal(env.unwrapped.state[0], clone.unwrapped.state[0])  # same generator state
+
+
+@pytest.mark.parametrize("copier", [copy.deepcopy, lambda env: pickle.loads(pickle.dumps(env))],
+                         ids=["deepcopy", "pickle"])
+def test_copies_step_their_own_buffers(copier, rng):
+    # the single env's physics step and common values are bound to its buffers (BoundKernel): a copy binds
+    # to its own, so stepping it never moves the original, and each continues as an untouched twin does
+    env, twin = gym.make("snake_env/Snake5-v3"), gym.make("snake_env/Snake5-v3")
+    env.reset(seed=3)
+    twin.reset(seed=3)
+    for a in rng.uniform(-1, 1, (10, 4)):
+        env.step(a)
+        twin.step(a)
+    clone, other = copier(env), copier(env)
+    for a in rng.uniform(-1, 1, (10, 4)):
+        other.step(a)  # moves only ``other``
+    for a in rng.uniform(-1, 1, (10, 4)):
+        results = [e.step(a) for e in (env, twin, clone)]
+        for r in results[1:]:
+            np.testing.assert_array_equal(results[0][0], r[0])
+            assert results[0][1:4] == r[1:4]
+            assert results[0][4]["x_velocity"] == r[4]["x_velocity"]
+            np.testing.assert_array_equal(results[0][4]["wheel_lateral_force"], r[4]["wheel_lateral_force"])
 
 
 def test_non_finite_state_ends_the_episode_without_nan():
