@@ -59,15 +59,16 @@ def profile(env_id: str, calls: int) -> dict[str, float]:
         "SnakeEnv.step": lambda: (restore(), single.step(action)),
         "SnakeBatch.step_first (the info of row 0)": lambda: (restore(), batch.step_first(checked)),
         "SnakeBatch._advance (physics, reward, costs, wheel info)": lambda: (restore(), batch._advance(checked[None], True)),
-        "the physics step": lambda: (restore(), batch.physics.step(*kernel_args[2:])),
-        "the compiled kernel alone": lambda: (restore(), stepping._step_lanes(*kernel_args)),
+        "the physics step (bound to the batch's buffers)": lambda: (restore(), batch._step_physics()),
+        "the compiled kernel alone, through numba's dispatcher": lambda: (restore(), stepping._step_lanes(*kernel_args)),
     }
     rows = {name: best_time(fn, calls) - restoring for name, fn in stateful.items()}
     rows["the task's reward"] = best_time(lambda: batch.task.evaluate(batch.config, batch._context, batch.task_state),
                                           calls)
     rows["action_array (the action's float64 copy; the clip is the step's)"] = best_time(
         lambda: action_array(action, action.shape), calls)
-    rows["the common info values (and the wheels' slip)"] = best_time(
+    rows["the common info values (and the wheels' slip), bound"] = best_time(batch._common_step_values, calls)
+    rows["the same through numba's dispatcher"] = best_time(
         lambda: common_step_values(batch._context, batch.common_values, batch.failed, batch._wheels), calls)
     return rows
 

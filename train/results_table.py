@@ -15,7 +15,9 @@ and the serpenoid's (every id of ``configs/serpenoid.yaml`` named SnakeN)
 against n; ``--earlier CSV`` (columns env, algo, seed, speed) adds hollow
 points for speeds measured in an earlier campaign whose runs are not at hand,
 and ``--measured CSV`` (same columns) adds this campaign's speeds of runs that
-are not under ``root`` (e.g. evaluated on another machine) as filled points.
+are not under ``root`` (e.g. evaluated on another machine) as filled points; with no runs under ``root``,
+``--measured`` alone redraws ``speed_vs_n.png`` from recorded speeds (``docs/results_v3.csv``: the
+tables of docs/results.md), the serpenoid evaluated on the CSV's version.
 """
 
 from __future__ import annotations
@@ -73,6 +75,16 @@ def speeds_from_csv(path, label: str, into=None) -> dict:
     return speeds
 
 
+def csv_versions(path) -> set[str]:
+    """The versions ("v3") of the SnakeN rows of a speeds CSV (none without a path)."""
+    import csv
+
+    if not path:
+        return set()
+    with open(path, newline="") as handle:
+        return {row["env"].rsplit("-", 1)[-1] for row in csv.DictReader(handle) if SIZE_RE.match(row["env"])}
+
+
 def env_arguments(env_id: str) -> list[str]:
     """snake-eval's arguments for a forward id; a length with no id of its own (a gait searched with
     ``--n-links``, e.g. snake_env/Snake10-v3) runs on the generic id with n_links."""
@@ -91,7 +103,8 @@ def plot_sizes(root: Path, runs: dict, episodes: int, path: Path, earlier_csv=No
     from snake_env.train.plots import plot_speed_vs_n
 
     serpenoid = {}
-    versions = {env.rsplit("-", 1)[-1] for env, _ in runs}  # the serpenoid searched on the runs' physics
+    # the serpenoid searched on the runs' physics (and the measured CSV's)
+    versions = {env.rsplit("-", 1)[-1] for env, _ in runs} | csv_versions(measured_csv)
     for env_id in load_gaits():
         env = env_id.split("/")[-1]
         if (m := SIZE_RE.match(env)) and env.rsplit("-", 1)[-1] in versions:
@@ -203,13 +216,14 @@ def main(argv=None) -> int:
         baselines[env] = evaluate_cached(root / f"serpenoid_{env}_{args.episodes}.json",
                                          ["--baseline", "serpenoid", "--env", f"snake_env/{env}",
                                           "--episodes", str(args.episodes)])
-    if args.images:
+    if args.images and runs:
         from snake_env.train.plots import plot_campaign
 
         groups = {key: [root / f"{key[0]}__{key[1]}__s{r['seed']}" / "eval" / "evaluations.npz" for r in items]
                   for key, items in runs.items()}
         plot_campaign(groups, {env: b["mean_forward_velocity"] for env, b in baselines.items()},
                       Path(args.images) / "curve_summary.png")
+    if args.images and (runs or args.measured):  # speeds from a CSV alone: speed_vs_n.png only
         plot_sizes(root, runs, args.episodes, Path(args.images) / "speed_vs_n.png", args.earlier, args.measured)
     print_tables(runs, baselines)
     return 0

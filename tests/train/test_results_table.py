@@ -62,3 +62,12 @@ def test_a_csv_row_may_name_its_curve(tmp_path):
     speeds = speeds_from_csv(path, "this table")
     assert dict(speeds[("jointpolicy", "JointPolicy zero-shot")]) == {20: [0.17]}
     assert dict(speeds[("ppo", "PPO (this table)")]) == {5: [1.3]}
+
+
+def test_the_serpenoid_is_drawn_on_the_versions_of_the_measured_csv(tmp_path):
+    from snake_env.train.results_table import csv_versions
+
+    path = tmp_path / "speeds.csv"
+    path.write_text("env,algo,seed,speed\nSnake12-v3,ppo,0,0.9\nSnake16-v3,joint,0,0.4\nSnakePath5-v2,ppo,0,1.0\n")
+    assert csv_versions(path) == {"v3"}  # tasks and the generic id do not count
+    assert csv_versions(None) == set()
