@@ -15,6 +15,13 @@ velocity, effort limit). The motor needs more than a sign of phidot: with the
 band, a joint driven by the full command settles at omega_0, and a faster one
 is braked, so the torque-speed envelope bounds the joint rates a policy can use.
 
+Known flaw, kept for v3's bits (docs/env.md, "Joint rates"): past
+|phidot| = omega_0 (1 + tau_max / tau_s) the band lies wholly beyond -tau_max
+(or tau_max), and a real motor brakes with at least |hi| (or |lo|), which its
+driver cannot cap. The clip above caps it at tau_max. Clipping to the limit
+first, then to the band, gives the physical value there and the same bits
+everywhere else; it waits for the next physics version.
+
 ``motor_torque`` is compiled inline into the derivative kernels, evaluated at
 every RK4 stage (the envelope depends on the state); the ideal torque source
 (``torque_limit`` = inf in the kernels' model) skips it altogether.
