@@ -76,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--env-kwarg", dest="env_kwargs", action="append", default=[], metavar="KEY=VALUE",
                         help="set an env kwarg (value read as YAML), e.g. path_type=circle; repeatable; "
                              "overrides the run's env_kwargs")
+    parser.add_argument("--sliding-wheels", type=int, metavar="STEPS",
+                        help="also run the first episode's first STEPS steps on wheels that slide under Coulomb "
+                             "friction (snake_env.physics.sliding_reference), beside the env's: speed and share of "
+                             "wheel-steps sliding (forward task, plain torques, finite wheel_friction)")
     parser.add_argument("--serpenoid-config", help="gait YAML for --baseline, whose controllers run the searched "
                                                    "gaits (default ./configs/serpenoid.yaml if it exists, else the "
                                                    "shipped one)")
@@ -289,6 +293,8 @@ def write_video(frames, path: Path, fps: float) -> int:
 def check_outputs(args) -> None:
     if args.episodes < 1:
         raise EvalError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.sliding_wheels is not None and args.sliding_wheels < 1:
+        raise EvalError(f"--sliding-wheels must be >= 1 steps, got {args.sliding_wheels}")
     if args.max_steps is not None and args.max_steps < 1:
         raise EvalError(f"--max-steps must be >= 1, got {args.max_steps}")
     if args.video and Path(args.video).suffix not in VIDEO_SUFFIXES:
@@ -497,6 +503,13 @@ def evaluate(args) -> dict:
     report = {"env_id": env_id, "env_kwargs": env_kwargs, **meta, "deterministic": args.deterministic,
               "seed": args.seed, "n_episodes": args.episodes, **summary, "task": task, **task_summary, **gait_summary,
               "episodes": results}
+    if args.sliding_wheels:
+        from snake_env.train.sliding_check import compare_on_sliding_wheels, print_comparison
+
+        report["sliding_wheels"] = compare_on_sliding_wheels(env_id, env_kwargs, act, reset, args.seed,
+                                                             args.sliding_wheels,
+                                                             env_wrapper=meta.get("env_wrapper"))
+        print_comparison(report["sliding_wheels"])
     if args.json_path:
         from snake_env.train.atomic import atomic_write_text
 

@@ -147,3 +147,26 @@ def test_cli_process_exits_nonzero_without_traceback(tmp_path):
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert result.stderr.startswith("snake-eval: error:") and result.stderr.count("\n") == 1
+
+
+def test_sliding_wheels_beside_the_env(tmp_path):
+    """--sliding-wheels: the serpenoid on the env and on wheels that slide, from one reset state."""
+    report = evaluate_json(tmp_path, "--baseline", "serpenoid", "--env", newest_id("Snake5"), "--episodes", "1",
+                           "--max-steps", "10", "--sliding-wheels", "10")
+    sliding = report["sliding_wheels"]
+    assert sliding["steps"] == 10 and sliding["wheel_friction"] == 0.8
+    assert sliding["env_x_velocity"] != sliding["sliding_x_velocity"]  # two models
+    assert 0.0 <= sliding["wheel_steps_sliding"] <= 1.0 and sliding["friction_power"] >= 0.0
+
+
+@pytest.mark.parametrize("argv, pattern", [
+    (["--sliding-wheels", "0"], "--sliding-wheels must be >= 1"),
+    (["--env-kwarg", "wheel_friction=null"], "wheel_friction must be a number > 0"),
+])
+def test_sliding_wheels_bad_input_is_one_line(capsys, argv, pattern):
+    with pytest.raises(SystemExit) as info:
+        main(["--baseline", "serpenoid", "--env", newest_id("Snake5"), "--episodes", "1", "--max-steps", "2",
+              "--sliding-wheels", "2", *argv])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("snake-eval: error:") and pattern in err and "\n" not in err, err
