@@ -285,7 +285,8 @@ class SnakeBatch:
             # every task: a cost on the wheels' lateral force beyond their grip, in link weights (the motion's
             # own excess: the traction limit already keeps the motors' torques from adding any)
             # (a wheel the traction limit holds at its grip is above it by rounding: < 1e-15 link weights)
-            excess = np.maximum(np.abs(self.wheel_force) - self.grip, 0.0) / self.wheel_load
+            # slip_margin < 1 charges force beyond that share of the grip too (1 * grip is grip exactly)
+            excess = np.maximum(np.abs(self.wheel_force) - self.task.slip_margin * self.grip, 0.0) / self.wheel_load
             extras[SLIP_KEY] = -self.task.slip_cost_weight * excess.sum(axis=1)
             rewards = rewards + extras[SLIP_KEY]
         if failures:

@@ -290,6 +290,10 @@ class Task:
                                       doc="weight of the wheels' lateral force beyond their grip in the reward "
                                           "(sum over wheels of max(0, |lambda_k| - mu m_k g) / (m_k g); a cost; "
                                           "0: none; needs wheel_friction)")
+    slip_margin: float = setting(1.0, "fraction of mu m g", minimum=0.0, maximum=1.0,
+                                 doc="the slip cost counts lateral force beyond this fraction of the grip, "
+                                     "max(0, |lambda_k| - margin mu m_k g): below 1 it also charges wheels the "
+                                     "traction limit holds near their grip, where a real wheel slides")
 
     name: ClassVar[str] = ""
     id_prefix: ClassVar[str] = ""

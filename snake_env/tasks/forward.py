@@ -108,7 +108,8 @@ class ForwardTask(Task):
     With `energy_cost_weight` > 0 (every task) the reward also loses
     `energy_cost_weight` * `actuator_power` (W), reported as `info["reward_energy"]`, and with
     `slip_cost_weight` > 0 it loses that weight times the wheels' lateral force beyond their grip,
-    sum_k max(0, |lambda_k| - mu m_k g) / (m_k g), reported as `info["reward_slip"]`.
+    sum_k max(0, |lambda_k| - mu m_k g) / (m_k g), reported as `info["reward_slip"]`; with
+    `slip_margin` < 1, beyond that share of the grip instead.
 
     ## Starting State
     theta_k ~ U(-s, s) (rad) for every link, V_1 ~ U(-s, s) (m/s),
@@ -180,6 +181,7 @@ class ForwardTask(Task):
     | `reset_noise_scale` | 0.1 | half-width of the uniform start noise (rad, m/s, rad/s) |
     | `energy_cost_weight` | 0.0 | reward lost per W of actuator power (every task) |
     | `slip_cost_weight` | 0.0 | reward lost per link weight (m_k g) of lateral wheel force beyond the grip mu m_k g, summed over wheels (every task; info `reward_slip`) |
+    | `slip_margin` | 1.0 | the slip cost counts lateral force beyond this share of the grip (0 < margin <= 1; below 1 it also charges wheels held near their grip, where a real wheel slides: `snake-eval --sliding-wheels`) |
 
     This task's arguments:
 
