@@ -100,11 +100,15 @@ class SlidingWheels:
             T = np.where(np.abs(phi) > limit, T - barrier, T)
         return T
 
+    def friction(self, v):
+        """The wheels' friction forces (N, along e_k_perp) at lateral velocities v (m/s): the module doc's law."""
+        return -self.grip * v / np.sqrt(v * v + self.slip_speed ** 2)
+
     def lateral(self, q, qdot):
         """(v, f): each wheel's lateral velocity (m/s) and friction force (N), along e_k_perp."""
         _, e_perp = unit_vectors(q[:self.n])
         v = constraint_matrix(self.lever, e_perp) @ qdot
-        return v, -self.grip * v / np.sqrt(v * v + self.slip_speed ** 2)
+        return v, self.friction(v)
 
     def kinetic_energy(self, q, qdot) -> float:
         """1/2 qdot^T M qdot (J), rotors included."""
@@ -128,7 +132,7 @@ class SlidingWheels:
         Q = generalized_forces(self.model, q, qdot, self.joint_torques(command, q, qdot), e, J)
         A = constraint_matrix(self.lever, e_perp)
         v = A @ qdot
-        f = -self.grip * v / np.sqrt(v * v + self.slip_speed ** 2)
+        f = self.friction(v)
         qddot = np.linalg.solve(M, Q - B + A.T @ f)
         return np.concatenate([qdot, qddot, [Q @ qdot, f @ v]])
 
