@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from snake_env.dynamics.lagrange import cm_velocities, consistent_qdot, lever_arms, link_jacobians, unit_vectors
+from snake_env.dynamics.lagrange import consistent_qdot
 from snake_env.dynamics.kinematics import cm_positions
 from snake_env.dynamics.sliding import SlidingWheels
 
@@ -107,9 +107,3 @@ class SlidingSnake:
             "friction_work": float(self.y[-1] - friction0),
         }
         return self.observation(), info
-
-    def link_speeds(self) -> np.ndarray:
-        """Each link's CM speed along itself (m/s), (n,)."""
-        e, e_perp = unit_vectors(self.q[:self.n])
-        J = link_jacobians(lever_arms(self.wheels.model.half_length), e_perp)
-        return np.sum(e * cm_velocities(J, self.qdot, self.n), axis=-1)
