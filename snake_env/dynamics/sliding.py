@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from . import compiled
+from . import compiled, sliding_step
 from .lagrange import (
     _bias_from_geometry,
     _inertia_from_jacobians,
@@ -79,6 +79,8 @@ class SlidingWheels:
         self.limit = (float(joint_limit), float(limit_stiffness), float(limit_damping))
         self.rotor = (np.zeros((self.n + 2, self.n + 2)) if rotor_inertia is None
                       else rotor_inertia_matrix(np.asarray(rotor_inertia, dtype=np.float64), self.n))
+        self._constants = None
+        self.solver_stats = None
 
     # ------------------------------------------------------------ loads
     def joint_torques(self, command, q, qdot):
@@ -159,6 +161,42 @@ class SlidingWheels:
         if not result.success or not np.all(np.isfinite(result.y[:, -1])):
             raise RuntimeError(f"sliding-wheel model: the integrator failed ({result.message})")
         return result.y[:, -1]
+
+    def advance_time_stepping(self, y, command, dt: float, substeps: int, impulse=None):
+        """y after ``dt`` (s) with ``command`` held, by :mod:`.sliding_step`'s exact-Coulomb time stepping in
+        ``substeps`` substeps (compiled; y as :meth:`derivatives`). Returns (y, sliding) with ``sliding`` (n,) the
+        share of substeps each wheel slid. ``impulse`` (n,) (N s), if given, is the solver's warm start and gets
+        the last substep's lateral impulses. Raises RuntimeError if the step fails (never a silent, wrong state)."""
+        if not (isinstance(substeps, int) and substeps >= 1):
+            raise ValueError(f"substeps must be an int >= 1, got {substeps!r}")
+        n = self.n
+        q = np.array(y[:n + 2], dtype=np.float64)
+        qdot = np.array(y[n + 2:2 * n + 4], dtype=np.float64)
+        impulse = np.zeros(n) if impulse is None else impulse
+        stats = np.zeros(5)
+        slid = np.zeros(n)
+        ok = sliding_step.advance(q, qdot, np.asarray(command, dtype=np.float64), *self.compiled_constants(),
+                                  dt / substeps, substeps, impulse, stats, slid, np.zeros(n))
+        if not ok or not (np.all(np.isfinite(q)) and np.all(np.isfinite(qdot))):
+            raise RuntimeError("sliding-wheel model: the time step failed (a singular mass matrix or an "
+                               "unconverged friction solve)")
+        self.solver_stats = stats
+        return np.concatenate([q, qdot, [y[-2] + stats[0], y[-1] + stats[1]]]), slid / substeps
+
+    def compiled_constants(self) -> tuple:
+        """The constants :func:`.sliding_step.advance` takes after (q, qdot, command), in its order."""
+        if self._constants is None:
+            G, g = sliding_step.inertia_constants(self.mass, self.lever)
+            _, _, _, c_joint, c_wheel = self.model.parameters(np.float64)
+            stall, no_load, t_max = self.motor
+            limit, k_limit, c_limit = self.limit
+            self._constants = (
+                G, g, float(np.sum(self.mass)), np.ascontiguousarray(self.inertia), np.ascontiguousarray(self.lever),
+                np.ascontiguousarray(self.grip), np.ascontiguousarray(c_joint, dtype=np.float64),
+                np.ascontiguousarray(c_wheel, dtype=np.float64), stall, 0.0 if math.isinf(no_load) else 1.0 / no_load,
+                t_max, limit, k_limit, c_limit, compiled.inverse_room(limit) if limit > 0.0 else 0.0,
+                np.ascontiguousarray(self.rotor))
+        return self._constants
 
     def initial(self, q, qdot):
         """y of a state (q, qdot), its work counters at 0."""

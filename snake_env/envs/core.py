@@ -157,10 +157,13 @@ class SnakeBatch:
         # the grips (N) of every row for the compiled slip test: a randomized batch's own (B, n) array, which
         # its resets redraw in place, or one robot's (n,) copied to every row
         self.row_grip = self.grip if self.grip.ndim == 2 else np.tile(self.grip, (B, 1))
-        self.slip = np.zeros((B, n), np.bool_)
+        # a physics whose wheels really slide says which do (reports_slip); else a wheel slips whose force exceeds
+        # its grip, compared in the common values' compiled call
+        own_slip = getattr(self.physics, "reports_slip", False)
+        self.slip = self.physics.slip if own_slip else np.zeros((B, n), np.bool_)
         # the wheel forces at the step's end come from the step's own sweep
         self._grip_buffers = (self.wheel_force, self.traction_scale) if self.report_grip else (None, None)
-        self._wheels = (self.wheel_force, self.row_grip, self.slip) if self.report_grip else None
+        self._wheels = (self.wheel_force, self.row_grip, self.slip) if self.report_grip and not own_slip else None
         self.physics_obs = np.zeros((B, self.params.obs_size))
         self.aux = np.zeros((B, physics.AUX_SIZE))
         self.q_prev = np.zeros((B, n + 2))
@@ -222,6 +225,8 @@ class SnakeBatch:
         self.task.reset(self.config, self.task_state, rows, rng, q, aux)
 
     def set_state(self, q, u) -> None:
+        if hasattr(self.physics, "set_state"):  # a physics with a state of its own beyond (q, u)
+            self.physics.set_state(q, u)
         obs, aux = self.physics.observe(np.asarray(q, np.float64), np.asarray(u, np.float64))
         self.q[:], self.u[:] = q, u
         self.physics_obs[:], self.aux[:] = obs.reshape(self.physics_obs.shape), aux.reshape(self.aux.shape)

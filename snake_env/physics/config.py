@@ -57,6 +57,7 @@ DEFAULT_LIMIT_DAMPING = 0.2  # N m s/rad, damper beyond the limit (at the least 
 LIMIT_STIFFNESS_PER_TORQUE = 10.0  # 1/rad
 MAX_JOINT_LIMIT = math.radians(150.0)  # rad: leaves >= 20 deg of barrier before the fold (170 deg)
 INTEGRATORS = ("rk4_refined", "rk4")
+WHEEL_MODELS = ("no_slip", "sliding")  # physics.batch picks the batch physics of each
 DEFAULT_INTEGRATOR = "rk4_refined"
 DEFAULT_ENERGY_TOLERANCE = 1e-2  # relative work-energy residual per env step
 DEFAULT_ERROR_TOLERANCE = 1e-2  # RK4 embedded local-error estimate per substep, relative (see physics)
@@ -127,6 +128,10 @@ class PhysicsConfig:
                                            doc="wheel-floor friction coefficient mu: the motors' torques are scaled "
                                                "so no wheel needs more than mu m_k g sideways (traction limit); "
                                                "info wheel_slip flags the motion's excess; None: unlimited grip")
+    wheel_model: str = setting("no_slip", "-", "choice", maximum=WHEEL_MODELS,
+                               doc='"no_slip": the paper\'s wheels (eq. 27) under the traction limit; "sliding": '
+                                   'each wheel grips within mu m_k g and slides under Coulomb friction beyond it '
+                                   '(physics.sliding_wheels)')
     actuator: str = setting(DEFAULT_ACTUATOR, "-", "choice", maximum=ACTUATORS,
                             doc='joint motors: "ideal" torque sources, or a DC-motor preset (physics.actuators)')
     stall_torque: float | None = setting(None, "N m", "optional_real", minimum=0.0,
@@ -181,6 +186,15 @@ class PhysicsConfig:
                                 ("actuator", "ideal"), ("wheel_friction", None)):
                 object.__setattr__(self, name, value)
         latency_substeps(self.control_latency, self.sim_dt, self.frame_skip)  # one-line ValueError if not whole
+        if self.wheel_model == "sliding":
+            if self.wheel_friction is None:
+                raise ValueError("wheel_model='sliding' needs wheel_friction, a mu > 0 (None: unlimited grip, the "
+                                 "no-slip model itself)")
+            unsupported = [name for name in ("torque_lag", "control_latency") if getattr(self, name) != 0.0]
+            unsupported += ["randomize"] if self.randomize not in (None, False) else []
+            if unsupported:
+                raise ValueError(f"wheel_model='sliding' takes no {', '.join(unsupported)} yet (0 or None), "
+                                 f"got {', '.join(f'{name}={getattr(self, name)!r}' for name in unsupported)}")
         object.__setattr__(self, "_motor", resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed,
                                                             self.torque_limit))
         object.__setattr__(self, "_randomize", resolve_randomize(

@@ -1,0 +1,367 @@
+"""Wheels that slide, stepped fast: the unconstrained chain with exact Coulomb friction, time-stepped.
+
+:mod:`.sliding` integrates the sliding-wheel model with Coulomb's law regularised over a slip speed,
+a stiff ODE that needs an implicit integrator (scipy's LSODA) and takes 0.1-0.3 s per env step. Here
+the same chain (eqs. 22-25: q = (theta_1..theta_n, x, y), n + 2 degrees of freedom) meets the wheels'
+friction without regularisation, as rigid-body simulators with contacts do (Moreau's and Stewart &
+Trinkle's velocity-level time stepping; MuJoCo and Bullet solve the same kind of problem). Over a
+substep h (s), with the loads Q and the bias B of eq. 24 at the substep's start,
+
+    M (qdot+ - qdot) = h (Q - B) + A^T p,        q+ = q + h qdot+                     (semi-implicit Euler)
+
+and the wheels' lateral impulses p_k (N s, along e_k_perp; A is eq. 26's constraint matrix) obey
+Coulomb's law at the substep's end, w = A qdot+ the wheels' lateral velocities (m/s):
+
+    |p_k| < mu m_k g h  and  w_k = 0      (the wheel grips), or
+    p_k = -mu m_k g h sign(w_k)            (the wheel slides, friction against the slide).
+
+With D = A M^-1 A^T (the wheels' Delassus matrix, symmetric positive definite) and b = A qdot* + h Adot qdot
+(qdot* = qdot + h M^-1 (Q - B) the free velocity; the second term carries each wheel's lateral velocity into
+its link's frame a substep on, so that a gripping wheel accelerates as eq. 27's A qddot = -Adot qdot says),
+w = b + D p: a box-constrained linear complementarity problem. It is solved exactly where every wheel grips (one Cholesky solve, the common case) and
+otherwise by projected Gauss-Seidel from that solution, clipped, to a residual of ``PGS_TOLERANCE``.
+As mu grows every wheel grips and the step becomes a velocity projection onto the no-slip constraint:
+its trajectories converge to eq. 27's as h -> 0 (tested against the Kane sweep). Friction is implicit,
+so there is no stiff lateral time constant to resolve: h follows from the joints' own rates (motor,
+dampings, joint-limit barrier), not from the friction.
+
+The loads are those of the env's physics and of :class:`.sliding.SlidingWheels`: the joint motors'
+torque-speed band and current limit (:func:`.motor.motor_torque`), joint and wheel damping, the
+joint-limit barrier, the rotors' inertia in M. M and B are O(n^2) through model constants
+(``G[a, b] = sum_k m_k c_ka c_kb``, c the lever arms of :func:`.lagrange.lever_arms`), so that
+M_ab = G_ab e_a_perp . e_b_perp + I_a delta_ab, M_a,xy = g_a e_a_perp with g_a = sum_k m_k c_ka, and
+B_a = -sum_j G_aj thetadot_j^2 e_a_perp . e_j; the solve is O(n^3) with small constants.
+
+Energy: with M frozen over a substep, Delta K = (h (Q - B) + A^T p) . (qdot + qdot+) / 2 exactly, and
+B's share cancels M's change to O(h^2): the step's ``work`` and ``friction_work`` sum those two
+trapezoid terms, and Delta K - work - friction_work -> 0 as h -> 0 (tested).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .compiled import BARRIER_CAP, LIMIT_RAMP
+from .motor import motor_torque
+
+PGS_TOLERANCE = 1e-12  # m/s: largest violation of Coulomb's law by the wheels' lateral velocities after a solve
+PGS_MAX_SWEEPS = 5000  # projected Gauss-Seidel sweeps at most; beyond them the step reports failure (NaN)
+# m/s: a wheel slides when its lateral velocity at a substep's end exceeds this (a gripping wheel's is zero to
+# the solver's tolerance, ~1e-12 m/s; one that has just broken away and moves slower grips at its limit)
+SLIDE_SPEED = 1e-6
+
+
+def inertia_constants(mass, lever):
+    """(G (n, n), g (n,)): G_ab = sum_k m_k c_ka c_kb (kg m^2), g_a = sum_k m_k c_ka (kg m), the model
+    constants of M and B (module doc)."""
+    G = np.einsum("k,ka,kb->ab", mass, lever, lever)
+    return np.ascontiguousarray(G), np.ascontiguousarray(mass @ lever)
+
+
+@njit(cache=True, nogil=True)
+def _cholesky(M, L):
+    """L L^T = M (lower triangular L, in place); False if M is not positive definite."""
+    N = M.shape[0]
+    for i in range(N):
+        for j in range(i + 1):
+            s = M[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+        for j in range(i + 1, N):
+            L[i, j] = 0.0
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _forward(L, x):
+    """x <- L^-1 x."""
+    N = L.shape[0]
+    for i in range(N):
+        s = x[i]
+        for k in range(i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+
+
+@njit(cache=True, nogil=True)
+def _backward(L, x):
+    """x <- L^-T x."""
+    N = L.shape[0]
+    for i in range(N - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, N):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+
+
+@njit(cache=True, nogil=True)
+def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room,
+                  out, motor):
+    """The joints' torques (N m, (n-1,)) into ``out``: the motor's for ``command`` (N m), less damping and the
+    joint-limit barrier, as the env's kernels and :meth:`.sliding.SlidingWheels.joint_torques` give them; the
+    motors' own share (after their band and current limit) into ``motor``."""
+    for k in range(phi.shape[0]):
+        T = command[k]
+        if t_max < math.inf:
+            T = motor_torque(T, phidot[k], stall, inv_no_load, t_max)
+        motor[k] = T
+        if joint_limit > 0.0 and abs(phi[k]) > joint_limit:
+            excess = phi[k] - joint_limit if phi[k] > joint_limit else phi[k] + joint_limit
+            d = abs(excess)
+            depth = min(d * inv_room, BARRIER_CAP)
+            ramp = d / (d + LIMIT_RAMP)
+            T -= ramp * (k_lim * excess / (1.0 - depth) + c_lim * phidot[k])
+        out[k] = T - c_joint[k] * phidot[k]
+
+
+@njit(cache=True, nogil=True)
+def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max,
+            joint_limit, k_lim, c_lim, inv_room, rotor, h, substeps, impulse, stats, sliding_substeps, lateral):
+    """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held; q, qdot
+    ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are updated in
+    place. ``stats`` (5,) gets += (work of every load but friction (J), friction's work (J), largest PGS sweep
+    count, substeps that needed PGS, the motors' energy (J): sum_k |A_k phidot_k| h, A_k the torque the motor
+    delivers); ``sliding_substeps`` (n,) counts per wheel the substeps it slid (|w_k| > SLIDE_SPEED), and
+    ``lateral`` (n,) gets the wheels' slip velocities w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg). grip: mu m_k g (N, (n,)); rotor: (n+2, n+2) rotor inertia matrix.
+    Returns False (state left NaN) if M lost definiteness or the solver did not converge."""
+    n = q.shape[0] - 2
+    N = n + 2
+    cos = np.empty(n)
+    sin = np.empty(n)
+    M = np.empty((N, N))
+    L = np.empty((N, N))
+    Y = np.empty((n, N))  # rows: L^-1 A^T's columns
+    D = np.empty((n, n))
+    Ld = np.empty((n, n))
+    force = np.empty(N)  # Q (eq. 24's loads)
+    bias = np.empty(N)  # B (eq. 24)
+    T = np.empty(n - 1)
+    A = np.empty(n - 1)  # the motors' torques (N m)
+    phi = np.empty(n - 1)
+    phidot = np.empty(n - 1)
+    b = np.empty(n)
+    vfree = np.empty(N)
+    v_new = np.empty(N)
+    rdot = np.empty(2)
+    for _ in range(substeps):
+        for k in range(n):
+            cos[k] = math.cos(q[k])
+            sin[k] = math.sin(q[k])
+        # M (eq. 25 through the constants G, g) and the rotors
+        for a in range(n):
+            for c in range(a + 1):
+                dot = sin[a] * sin[c] + cos[a] * cos[c]  # e_a_perp . e_c_perp
+                M[a, c] = G[a, c] * dot + rotor[a, c]
+                M[c, a] = M[a, c]
+            M[a, a] += inertia[a]
+            M[a, n] = -g[a] * sin[a] + rotor[a, n]
+            M[a, n + 1] = g[a] * cos[a] + rotor[a, n + 1]
+            M[n, a] = M[a, n]
+            M[n + 1, a] = M[a, n + 1]
+        M[n, n] = total_mass + rotor[n, n]
+        M[n + 1, n + 1] = total_mass + rotor[n + 1, n + 1]
+        M[n, n + 1] = rotor[n, n + 1]
+        M[n + 1, n] = rotor[n + 1, n]
+        # Q - B: joint loads (eq. 11), wheel rolling resistance along each link, minus the centripetal bias
+        for k in range(n - 1):
+            phi[k] = q[k + 1] - q[k]
+            phidot[k] = qdot[k + 1] - qdot[k]
+        joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
+                      inv_room, T, A)
+        for a in range(N):
+            force[a] = 0.0
+        for k in range(n - 1):
+            force[k] -= T[k]
+            force[k + 1] += T[k]
+        for a in range(N):
+            bias[a] = 0.0
+        for a in range(n):  # B_a = -sum_j G_aj thetadot_j^2 e_a_perp . e_j
+            s = 0.0
+            for j in range(n):
+                s += G[a, j] * qdot[j] * qdot[j] * (-sin[a] * cos[j] + cos[a] * sin[j])
+            bias[a] = -s
+        for j in range(n):  # B_xy = -sum_j g_j thetadot_j^2 e_j
+            bias[n] -= g[j] * qdot[j] * qdot[j] * cos[j]
+            bias[n + 1] -= g[j] * qdot[j] * qdot[j] * sin[j]
+        for k in range(n):
+            if c_wheel[k] != 0.0:  # rolling resistance -c_w V_k e_k at CM_k
+                rdot[0] = qdot[n]
+                rdot[1] = qdot[n + 1]
+                for j in range(k + 1):
+                    rdot[0] -= lever[k, j] * sin[j] * qdot[j]
+                    rdot[1] += lever[k, j] * cos[j] * qdot[j]
+                f = -c_wheel[k] * (cos[k] * rdot[0] + sin[k] * rdot[1])
+                fx, fy = f * cos[k], f * sin[k]
+                for j in range(k + 1):
+                    force[j] += lever[k, j] * (-sin[j] * fx + cos[j] * fy)
+                force[n] += fx
+                force[n + 1] += fy
+        if not _cholesky(M, L):
+            return _fail(q, qdot)
+        for a in range(N):
+            vfree[a] = h * (force[a] - bias[a])
+        _forward(L, vfree)
+        _backward(L, vfree)
+        for a in range(N):
+            vfree[a] += qdot[a]
+        # A's rows (eq. 26): A_kj = c_kj e_k_perp . e_j_perp (j <= k), A_k,xy = e_k_perp; Y_k = L^-1 A_k^T
+        for k in range(n):
+            for a in range(N):
+                Y[k, a] = 0.0
+            for j in range(k + 1):
+                Y[k, j] = lever[k, j] * (sin[k] * sin[j] + cos[k] * cos[j])
+            Y[k, n] = -sin[k]
+            Y[k, n + 1] = cos[k]
+            s = 0.0
+            for a in range(N):
+                s += Y[k, a] * vfree[a]
+            # + h Adot qdot: the wheel's lateral velocity a substep on, in the link's turned frame (eq. 27's
+            # -Adot qdot; without it a gripping wheel's acceleration would miss it by O(1))
+            rx, ry = qdot[n], qdot[n + 1]
+            curve = 0.0
+            for j in range(k + 1):
+                rx -= lever[k, j] * sin[j] * qdot[j]
+                ry += lever[k, j] * cos[j] * qdot[j]
+                curve += lever[k, j] * qdot[j] * qdot[j] * (cos[k] * sin[j] - sin[k] * cos[j])
+            b[k] = s + h * (-qdot[k] * (cos[k] * rx + sin[k] * ry) - curve)
+            _forward(L, Y[k])
+        for k in range(n):  # D = A M^-1 A^T = Y Y^T
+            for j in range(k + 1):
+                s = 0.0
+                for a in range(N):
+                    s += Y[k, a] * Y[j, a]
+                D[k, j] = s
+                D[j, k] = s
+        # every wheel gripping: D p = -b
+        if not _cholesky(D, Ld):
+            return _fail(q, qdot)
+        for k in range(n):
+            impulse[k] = -b[k]
+        _forward(Ld, impulse)
+        _backward(Ld, impulse)
+        inside = True
+        for k in range(n):
+            bound = grip[k] * h
+            if impulse[k] > bound:
+                impulse[k] = bound
+                inside = False
+            elif impulse[k] < -bound:
+                impulse[k] = -bound
+                inside = False
+        if not inside:  # projected Gauss-Seidel from the clipped solution
+            sweeps = 0
+            while True:
+                sweeps += 1
+                worst = 0.0
+                for k in range(n):
+                    s = b[k]
+                    for j in range(n):
+                        s += D[k, j] * impulse[j]
+                    bound = grip[k] * h
+                    p = impulse[k] - s / D[k, k]
+                    p = bound if p > bound else (-bound if p < -bound else p)
+                    # Coulomb's violation at k: a gripping wheel's velocity, or a sliding one's velocity along
+                    # its friction (p = +bound needs w <= 0, p = -bound needs w >= 0)
+                    if -bound < impulse[k] < bound:
+                        viol = abs(s)
+                    elif impulse[k] >= bound:
+                        viol = s if s > 0.0 else 0.0
+                    else:
+                        viol = -s if s < 0.0 else 0.0
+                    worst = max(worst, viol)
+                    impulse[k] = p
+                if worst <= PGS_TOLERANCE:
+                    break
+                if sweeps >= PGS_MAX_SWEEPS:
+                    return _fail(q, qdot)
+            stats[2] = max(stats[2], sweeps)
+            stats[3] += 1
+        # qdot+ = qdot* + M^-1 A^T p = qdot* + L^-T (Y^T p)
+        for a in range(N):
+            s = 0.0
+            for k in range(n):
+                s += Y[k, a] * impulse[k]
+            v_new[a] = s
+        _backward(L, v_new)
+        for a in range(N):
+            v_new[a] += vfree[a]
+        # the trapezoid work terms (module doc), then the lateral velocities at the substep's end
+        work = 0.0
+        for a in range(N):
+            work += h * force[a] * 0.5 * (qdot[a] + v_new[a])
+        friction = 0.0
+        for k in range(n):
+            wk_old = -sin[k] * qdot[n] + cos[k] * qdot[n + 1]
+            wk_new = -sin[k] * v_new[n] + cos[k] * v_new[n + 1]
+            for j in range(k + 1):
+                a_kj = lever[k, j] * (sin[k] * sin[j] + cos[k] * cos[j])
+                wk_old += a_kj * qdot[j]
+                wk_new += a_kj * v_new[j]
+            friction += impulse[k] * 0.5 * (wk_old + wk_new)
+            slip = b[k]  # the complementarity problem's w_k = b_k + (D p)_k: zero where the wheel grips
+            for j in range(n):
+                slip += D[k, j] * impulse[j]
+            lateral[k] = slip
+            if abs(slip) > SLIDE_SPEED:
+                sliding_substeps[k] += 1
+        motor_energy = 0.0  # |A_k phidot_k| by the trapezoid of the joint rates, as the work
+        for k in range(n - 1):
+            motor_energy += abs(A[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])) * h
+        for a in range(N):
+            qdot[a] = v_new[a]
+            q[a] += h * v_new[a]
+        stats[0] += work
+        stats[1] += friction
+        stats[4] += motor_energy
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _fail(q, qdot):
+    for a in range(q.shape[0]):
+        q[a] = math.nan
+        qdot[a] = math.nan
+    return False
+
+
+@njit(cache=True, nogil=True)
+def kinetic_energy(q, qdot, G, g, total_mass, inertia, rotor):
+    """1/2 qdot^T M qdot (J) of one state, rotors included (M as :func:`advance` builds it)."""
+    n = q.shape[0] - 2
+    K = 0.5 * total_mass * (qdot[n] * qdot[n] + qdot[n + 1] * qdot[n + 1])
+    for a in range(n):
+        ca, sa = math.cos(q[a]), math.sin(q[a])
+        K += 0.5 * inertia[a] * qdot[a] * qdot[a]
+        K += qdot[a] * g[a] * (-sa * qdot[n] + ca * qdot[n + 1])
+        for c in range(n):
+            K += 0.5 * G[a, c] * (sa * math.sin(q[c]) + ca * math.cos(q[c])) * qdot[a] * qdot[c]
+    for a in range(n + 2):
+        for c in range(n + 2):
+            K += 0.5 * rotor[a, c] * qdot[a] * qdot[c]
+    return K
+
+
+@njit(cache=True, nogil=True)
+def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load,
+                 t_max, joint_limit, k_lim, c_lim, inv_room, rotor, h, substeps, rows, impulse, stats, sliding_substeps,
+                 lateral, kinetic):
+    """:func:`advance` of the rows ``rows`` of a batch (q, qdot (B, n+2), commands (B, n-1), impulse and
+    sliding_substeps and lateral (B, n), stats (B, 5), all in place; h and substeps (B,) per row) and the kinetic energy
+    before and after each step into ``kinetic`` (B, 2) (J). Returns ok (B,) (False: that row is NaN)."""
+    ok = np.ones(q.shape[0], np.bool_)
+    for b in rows:
+        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], G, g, total_mass, inertia, rotor)
+        ok[b] = advance(q[b], qdot[b], commands[b], G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
+                        inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, h[b], substeps[b], impulse[b],
+                        stats[b], sliding_substeps[b], lateral[b])
+        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], G, g, total_mass, inertia, rotor) if ok[b] else math.nan
+    return ok
