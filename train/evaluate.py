@@ -258,7 +258,8 @@ def episode_frames(env, act, reset_controller, seed: int, max_steps=None, label=
     yield decorate(env.render())
     while True:
         obs, reward, terminated, truncated, info = env.step(act(obs))
-        gait.add(env.unwrapped.joint_state(), info["actuator_power"], wheel_forces(env.unwrapped, info))
+        gait.add(env.unwrapped.joint_state(), info["actuator_power"], wheel_forces(env.unwrapped, info),
+                 info.get("wheel_slip"))
         total += float(reward)
         speeds.append(float(info["x_velocity"]))
         steps += 1

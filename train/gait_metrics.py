@@ -21,6 +21,9 @@ From the joint state sampled once per env step (dt s) over an episode of L steps
   mu m_k g (``snake_env.physics.config.sliding``: a wheel the traction limit holds at mu m_k g, up to
   rounding, is inside), mu the env's ``wheel_friction`` or, for unlimited grip, :data:`REFERENCE_FRICTION`.
   A rubber wheel holds about its load (mu 0.8-1); the no-slip model is exact only inside the cone.
+- ``wheel_slip_share``: the share of wheel-steps the env flags in ``info["wheel_slip"]``: on the no-slip
+  wheels, those outside the cone (the same count); on sliding wheels (``wheel_model="sliding"``), whose force
+  never exceeds the grip, those that slide. nan where the env reports no ``wheel_slip`` (unlimited grip).
 """
 
 from __future__ import annotations
@@ -32,11 +35,11 @@ import numpy as np
 from snake_env.physics.config import DEFAULT_WHEEL_FRICTION, sliding
 
 GAIT_METRICS = ("dominant_joint_frequency", "peak_joint_rate", "torque_sign_flip_share", "mean_power", "peak_power",
-                "median_grip_demand", "peak_grip_demand", "outside_friction_cone_share")
+                "median_grip_demand", "peak_grip_demand", "outside_friction_cone_share", "wheel_slip_share")
 # how the episode values of a gait metric combine over episodes in snake-eval's summary
 SUMMARY = {"dominant_joint_frequency": "mean", "peak_joint_rate": "max", "torque_sign_flip_share": "mean",
            "mean_power": "mean", "peak_power": "max", "median_grip_demand": "mean", "peak_grip_demand": "max",
-           "outside_friction_cone_share": "mean"}
+           "outside_friction_cone_share": "mean", "wheel_slip_share": "mean"}
 # mu of the cone share when the env's wheels grip without limit: the default wheels' (rubber on concrete), so a
 # v2 (unlimited grip) run and a v3 run are held to the same cone
 REFERENCE_FRICTION = DEFAULT_WHEEL_FRICTION
@@ -73,11 +76,14 @@ class GaitRecorder:
         self.dt = float(dt)
         self.wheel_load = None if wheel_load is None else np.asarray(wheel_load, np.float64)
         self.friction = REFERENCE_FRICTION if wheel_friction is None else float(wheel_friction)
-        self.angles, self.rates, self.torques, self.power, self.grip = [], [], [], [], []
+        self.angles, self.rates, self.torques, self.power, self.grip, self.slip = [], [], [], [], [], []
 
-    def add(self, joint_state, actuator_power: float, wheel_lateral_force=None) -> None:
+    def add(self, joint_state, actuator_power: float, wheel_lateral_force=None, wheel_slip=None) -> None:
         """``joint_state``: (phi (rad), phidot (rad/s), torque (N m)) after the step; ``wheel_lateral_force``
-        (N, per wheel) of the step when the recorder knows the wheel loads."""
+        (N, per wheel) of the step when the recorder knows the wheel loads; ``wheel_slip`` (bool, per wheel) the
+        step's info flags, if the env reports them."""
+        if wheel_slip is not None:
+            self.slip.append(np.asarray(wheel_slip, dtype=bool))
         phi, phidot, torque = joint_state
         self.angles.append(np.array(phi, dtype=np.float64))
         self.rates.append(np.array(phidot, dtype=np.float64))
@@ -97,11 +103,12 @@ class GaitRecorder:
             "mean_power": float(np.mean(self.power)),
             "peak_power": float(np.max(self.power)),
             **self._grip_metrics(),
+            "wheel_slip_share": float(np.mean(np.concatenate(self.slip))) if self.slip else math.nan,
         }
 
     def _grip_metrics(self) -> dict:
         if not self.grip:
-            return {key: math.nan for key in GAIT_METRICS[-3:]}
+            return {key: math.nan for key in ("median_grip_demand", "peak_grip_demand", "outside_friction_cone_share")}
         demand = np.concatenate(self.grip)  # |lambda| / (m g) of every wheel-step
         return {"median_grip_demand": float(np.median(demand)), "peak_grip_demand": float(demand.max()),
                 "outside_friction_cone_share": float(np.mean(sliding(demand, self.friction)))}

@@ -46,7 +46,7 @@ class EpisodeRecorder:
         ``wheel_lateral_force`` (N, per wheel) the grip metrics."""
         self.positions.append((info["x_position"], info["y_position"]))
         if joint_state is not None:
-            self.gait.add(joint_state, info["actuator_power"], wheel_lateral_force)
+            self.gait.add(joint_state, info["actuator_power"], wheel_lateral_force, info.get("wheel_slip"))
         self.energy += float(info["actuator_power"]) * self.dt
         for key in self.values:
             self.values[key].append(float(info[key]))

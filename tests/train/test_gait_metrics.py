@@ -102,3 +102,28 @@ def test_serpenoid_gait_metrics_match_its_parameters_and_the_state(tmp_path):
     assert episode["outside_friction_cone_share"] == pytest.approx(np.mean(sliding(np.asarray(demand),
                                                                             REFERENCE_FRICTION)))
     assert 0.3 < episode["outside_friction_cone_share"] < 1.0
+
+
+def test_wheel_slip_share_counts_the_flagged_wheel_steps():
+    """On sliding wheels every force is within the grip, so the cone share is 0; the slip share counts the
+    wheel-steps the env flags as sliding. Without flags (unlimited grip) it is nan."""
+    recorder = GaitRecorder(DT, np.full(3, 9.81), 0.8)
+    state = (np.zeros(2), np.zeros(2), np.ones(2))
+    grip = 0.8 * 9.81
+    recorder.add(state, 1.0, np.array([grip, -grip, 0.1]), np.array([True, False, False]))
+    recorder.add(state, 1.0, np.array([grip, 0.2, 0.1]), np.array([True, True, False]))
+    metrics = recorder.metrics()
+    assert metrics["outside_friction_cone_share"] == 0.0
+    assert metrics["wheel_slip_share"] == pytest.approx(3 / 6)
+    unflagged = GaitRecorder(DT)
+    unflagged.add(state, 1.0)
+    assert math.isnan(unflagged.metrics()["wheel_slip_share"])
+
+
+def test_eval_on_sliding_wheels_reports_the_slip_share(tmp_path):
+    out = tmp_path / "eval.json"
+    eval_main(["--baseline", "serpenoid", "--env", "snake_env/Snake5-v3", "--episodes", "1", "--max-steps", "30",
+               "--env-kwarg", "wheel_model=sliding", "--json", str(out)])
+    summary = json.loads(out.read_text())
+    assert 0.0 < summary["mean_wheel_slip_share"] < 1.0  # the serpenoid's start slides some wheels
+    assert summary["mean_outside_friction_cone_share"] == 0.0
