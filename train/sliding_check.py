@@ -52,7 +52,7 @@ def compare_on_sliding_wheels(env_id: str, env_kwargs: dict, act, reset, seed: i
     env_v, v = float(np.mean(env_speeds)), float(np.mean(speeds))
     return {
         "steps": len(speeds), "seed": seed, "wheel_friction": float(base.config.wheel_friction),
-        "slip_speed": slip_speed,
+        "slip_speed": slip_speed, "env_wheel_model": base.config.wheel_model,
         "env_x_velocity": env_v, "sliding_x_velocity": v,
         "speed_ratio": v / env_v if env_v != 0.0 else float("nan"),
         "wheel_steps_sliding": float(np.mean(sliding)),
@@ -63,8 +63,10 @@ def compare_on_sliding_wheels(env_id: str, env_kwargs: dict, act, reset, seed: i
 def print_comparison(result: dict) -> None:
     print(f"\nsliding wheels (mu {result['wheel_friction']:g}, Coulomb friction regularised over "
           f"{result['slip_speed'] * 1e3:g} mm/s), episode seed {result['seed']}, first {result['steps']} steps:")
-    print(f"  v_x on the env (no-slip, traction limit): {result['env_x_velocity']:.3f} m/s")
-    print(f"  v_x on sliding wheels:                    {result['sliding_x_velocity']:.3f} m/s "
+    env = ("no-slip, traction limit" if result["env_wheel_model"] == "no_slip"
+           else "sliding wheels, exact Coulomb, time-stepped")
+    print(f"  v_x on the env ({env}): {result['env_x_velocity']:.3f} m/s")
+    print(f"  v_x on the regularised reference: {result['sliding_x_velocity']:.3f} m/s "
           f"({result['speed_ratio']:.2f}x)")
     print(f"  wheel-steps sliding: {100 * result['wheel_steps_sliding']:.1f} %; friction power "
           f"{result['friction_power']:.3f} W")

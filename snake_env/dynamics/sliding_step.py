@@ -18,8 +18,11 @@ Coulomb's law at the substep's end, w = A qdot+ the wheels' lateral velocities (
 With D = A M^-1 A^T (the wheels' Delassus matrix, symmetric positive definite) and b = A qdot* + h Adot qdot
 (qdot* = qdot + h M^-1 (Q - B) the free velocity; the second term carries each wheel's lateral velocity into
 its link's frame a substep on, so that a gripping wheel accelerates as eq. 27's A qddot = -Adot qdot says),
-w = b + D p: a box-constrained linear complementarity problem. It is solved exactly where every wheel grips (one Cholesky solve, the common case) and
-otherwise by projected Gauss-Seidel from that solution, clipped, to a residual of ``PGS_TOLERANCE``.
+w = b + D p: a box-constrained linear complementarity problem. D is positive definite, so its solution is unique (a strictly convex quadratic program). It is solved
+by active sets, exactly to rounding: from the last substep's sliding wheels, the gripping wheels' impulses solve
+their block of D, a wheel that needs more than its grip slides, a sliding wheel whose velocity runs with its
+friction grips again (one Cholesky solve when nothing changes, the common case); where that does not settle,
+by projected Gauss-Seidel to a residual of ``PGS_TOLERANCE``.
 As mu grows every wheel grips and the step becomes a velocity projection onto the no-slip constraint:
 its trajectories converge to eq. 27's as h -> 0 (tested against the Kane sweep). Friction is implicit,
 so there is no stiff lateral time constant to resolve: h follows from the joints' own rates (motor,
@@ -128,8 +131,8 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
             joint_limit, k_lim, c_lim, inv_room, rotor, h, substeps, impulse, stats, sliding_substeps, lateral):
     """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held; q, qdot
     ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are updated in
-    place. ``stats`` (5,) gets += (work of every load but friction (J), friction's work (J), largest PGS sweep
-    count, substeps that needed PGS, the motors' energy (J): sum_k |A_k phidot_k| h, A_k the torque the motor
+    place. ``stats`` (5,) gets += (work of every load but friction (J), friction's work (J), the largest count
+    of active-set iterations (or PGS sweeps), substeps that fell back to PGS, the motors' energy (J): sum_k |A_k phidot_k| h, A_k the torque the motor
     delivers); ``sliding_substeps`` (n,) counts per wheel the substeps it slid (|w_k| > SLIDE_SPEED), and
     ``lateral`` (n,) gets the wheels' slip velocities w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg). grip: mu m_k g (N, (n,)); rotor: (n+2, n+2) rotor inertia matrix.
     Returns False (state left NaN) if M lost definiteness or the solver did not converge."""
@@ -141,7 +144,15 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
     L = np.empty((N, N))
     Y = np.empty((n, N))  # rows: L^-1 A^T's columns
     D = np.empty((n, n))
-    Ld = np.empty((n, n))
+    Dff = np.empty((n, n))  # the gripping wheels' block of D, its Cholesky factor, right side and indices
+    Lff = np.empty((n, n))
+    rhs = np.empty(n)
+    free = np.empty(n, np.int64)
+    bounds = np.empty(n)
+    state = np.empty(n, np.int64)  # 0: grips; +1 / -1: slides with p at +bound / -bound
+    for k in range(n):  # from the warm start (the last substep's impulses)
+        bound = grip[k] * h
+        state[k] = 1 if impulse[k] >= bound * (1.0 - 1e-12) else (-1 if impulse[k] <= -bound * (1.0 - 1e-12) else 0)
     force = np.empty(N)  # Q (eq. 24's loads)
     bias = np.empty(N)  # B (eq. 24)
     T = np.empty(n - 1)
@@ -241,50 +252,20 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
                     s += Y[k, a] * Y[j, a]
                 D[k, j] = s
                 D[j, k] = s
-        # every wheel gripping: D p = -b
-        if not _cholesky(D, Ld):
-            return _fail(q, qdot)
+        # the wheels' impulses: an active-set solve from the last substep's sliding set, exact to rounding;
+        # projected Gauss-Seidel if it does not settle
         for k in range(n):
-            impulse[k] = -b[k]
-        _forward(Ld, impulse)
-        _backward(Ld, impulse)
-        inside = True
-        for k in range(n):
-            bound = grip[k] * h
-            if impulse[k] > bound:
-                impulse[k] = bound
-                inside = False
-            elif impulse[k] < -bound:
-                impulse[k] = -bound
-                inside = False
-        if not inside:  # projected Gauss-Seidel from the clipped solution
-            sweeps = 0
-            while True:
-                sweeps += 1
-                worst = 0.0
-                for k in range(n):
-                    s = b[k]
-                    for j in range(n):
-                        s += D[k, j] * impulse[j]
-                    bound = grip[k] * h
-                    p = impulse[k] - s / D[k, k]
-                    p = bound if p > bound else (-bound if p < -bound else p)
-                    # Coulomb's violation at k: a gripping wheel's velocity, or a sliding one's velocity along
-                    # its friction (p = +bound needs w <= 0, p = -bound needs w >= 0)
-                    if -bound < impulse[k] < bound:
-                        viol = abs(s)
-                    elif impulse[k] >= bound:
-                        viol = s if s > 0.0 else 0.0
-                    else:
-                        viol = -s if s < 0.0 else 0.0
-                    worst = max(worst, viol)
-                    impulse[k] = p
-                if worst <= PGS_TOLERANCE:
-                    break
-                if sweeps >= PGS_MAX_SWEEPS:
-                    return _fail(q, qdot)
-            stats[2] = max(stats[2], sweeps)
+            bounds[k] = grip[k] * h
+        iterations = _active_set(D, b, bounds, impulse, state, Dff, Lff, rhs, free)
+        if iterations < 0:
+            sweeps = _projected_gauss_seidel(D, b, bounds, impulse)
+            if sweeps < 0:
+                return _fail(q, qdot)
+            for k in range(n):
+                state[k] = 1 if impulse[k] >= bounds[k] else (-1 if impulse[k] <= -bounds[k] else 0)
             stats[3] += 1
+            iterations = sweeps
+        stats[2] = max(stats[2], iterations)
         # qdot+ = qdot* + M^-1 A^T p = qdot* + L^-T (Y^T p)
         for a in range(N):
             s = 0.0
@@ -323,6 +304,105 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
         stats[1] += friction
         stats[4] += motor_energy
     return True
+
+
+
+@njit(cache=True, nogil=True)
+def _active_set(D, b, bounds, impulse, state, Dff, Lff, rhs, free):
+    """The box-constrained complementarity problem of the module doc (the wheels' impulses p, |p_k| <= bounds_k,
+    w = b + D p) by active sets from ``state`` (0 grips, +-1 slides at +-bound; updated): the gripping wheels'
+    impulses solve their block of D exactly given the sliding ones', wheels that would need more than their
+    bound start sliding, sliding wheels whose velocity runs with their friction grip again. D is positive
+    definite, so the solution is unique (a strictly convex quadratic program). Returns the iterations, or -1 if
+    it did not settle within 2 n + 8 (then p is not a solution)."""
+    n = b.shape[0]
+    for iteration in range(2 * n + 8):
+        m = 0
+        for k in range(n):
+            if state[k] == 0:
+                free[m] = k
+                m += 1
+            else:
+                impulse[k] = state[k] * bounds[k]
+        if m > 0:
+            for i in range(m):
+                k = free[i]
+                s = -b[k]
+                for j in range(n):
+                    if state[j] != 0:
+                        s -= D[k, j] * impulse[j]
+                rhs[i] = s
+                for c in range(m):
+                    Dff[i, c] = D[k, free[c]]
+            if not _cholesky(Dff[:m, :m], Lff[:m, :m]):
+                return -1
+            _forward(Lff[:m, :m], rhs[:m])
+            _backward(Lff[:m, :m], rhs[:m])
+            for i in range(m):
+                impulse[free[i]] = rhs[i]
+        changed = False
+        for i in range(m):  # a gripping wheel that needs more than its grip slides
+            k = free[i]
+            if impulse[k] > bounds[k]:
+                state[k] = 1
+                changed = True
+            elif impulse[k] < -bounds[k]:
+                state[k] = -1
+                changed = True
+        if changed:
+            continue
+        for k in range(n):  # a sliding wheel whose velocity runs with its friction grips again
+            if state[k] != 0:
+                w = b[k]
+                for j in range(n):
+                    w += D[k, j] * impulse[j]
+                if state[k] * w > PGS_TOLERANCE:
+                    state[k] = 0
+                    changed = True
+        if not changed:
+            return iteration + 1
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _projected_gauss_seidel(D, b, bounds, impulse):
+    """The same problem by projected Gauss-Seidel from the all-gripping solution clipped to the bounds, until
+    Coulomb's law holds to PGS_TOLERANCE (m/s); returns the sweeps, or -1 after PGS_MAX_SWEEPS."""
+    n = b.shape[0]
+    Ld = np.empty((n, n))
+    if not _cholesky(D, Ld):
+        return -1
+    for k in range(n):
+        impulse[k] = -b[k]
+    _forward(Ld, impulse)
+    _backward(Ld, impulse)
+    for k in range(n):
+        impulse[k] = min(max(impulse[k], -bounds[k]), bounds[k])
+    sweeps = 0
+    while True:
+        sweeps += 1
+        worst = 0.0
+        for k in range(n):
+            s = b[k]
+            for j in range(n):
+                s += D[k, j] * impulse[j]
+            bound = bounds[k]
+            p = impulse[k] - s / D[k, k]
+            p = bound if p > bound else (-bound if p < -bound else p)
+            # Coulomb's violation at k: a gripping wheel's velocity, or a sliding one's velocity along
+            # its friction (p = +bound needs w <= 0, p = -bound needs w >= 0)
+            if -bound < impulse[k] < bound:
+                viol = abs(s)
+            elif impulse[k] >= bound:
+                viol = s if s > 0.0 else 0.0
+            else:
+                viol = -s if s < 0.0 else 0.0
+            worst = max(worst, viol)
+            impulse[k] = p
+        if worst <= PGS_TOLERANCE:
+            return sweeps
+        if sweeps >= PGS_MAX_SWEEPS:
+            return -1
 
 
 @njit(cache=True, nogil=True)
