@@ -155,3 +155,30 @@ def test_long_snake_steps_and_stays_finite():
         y, share = wheels.advance_time_stepping(y, rng.uniform(-1, 1, n - 1), DT, 40)
         assert np.all(np.isfinite(y))
     assert math.isfinite(wheels.solver_stats[2]) and wheels.solver_stats[2] < sliding_step.PGS_MAX_SWEEPS
+
+
+def test_active_set_and_gauss_seidel_find_the_same_unique_solution():
+    """The box-constrained problem with a positive definite D has one solution; the active-set solve (exact to
+    rounding) and projected Gauss-Seidel (to its tolerance) find it from any start, and it obeys Coulomb's law."""
+    rng = np.random.default_rng(0)
+    settled = 0
+    for _ in range(300):
+        n = int(rng.integers(2, 31))
+        X = rng.normal(size=(n, n))
+        D = X @ X.T + 0.05 * np.eye(n)
+        b, bounds = rng.normal(size=n), rng.uniform(0.05, 1.0, n)
+        exact, state = np.zeros(n), rng.integers(-1, 2, n)
+        iterations = sliding_step._active_set(D, b, bounds, exact, state, np.empty((n, n)), np.empty((n, n)),
+                                              np.empty(n), np.empty(n, np.int64))
+        pgs = np.zeros(n)
+        assert sliding_step._projected_gauss_seidel(D, b, bounds, pgs) > 0
+        if iterations < 0:
+            continue  # the step falls back to Gauss-Seidel there
+        settled += 1
+        np.testing.assert_allclose(exact, pgs, atol=1e-9)
+        w = b + D @ exact
+        grips = np.abs(exact) < bounds * (1 - 1e-12)
+        assert np.all(np.abs(w[grips]) < 1e-9)
+        assert np.all(np.abs(exact) <= bounds * (1 + 1e-12))
+        assert np.all(-np.sign(exact[~grips]) * w[~grips] >= -1e-9)  # friction against the slide
+    assert settled > 290
