@@ -134,7 +134,8 @@ def episode_lines(time_s: float, speed: float, distance: float, episode_return: 
     """The HUD lines of a locomotion episode: time (s), forward speed (m/s), distance from the origin (m), return;
     with ``gait`` (the metrics of ``snake_env.train.gait_metrics`` so far) also the dominant joint frequency (Hz),
     the peak joint rate (rad/s), the torque sign-flip share, the mean actuator power (W) and the share of
-    wheel-steps outside the friction cone."""
+    wheel-steps the env flags in ``wheel_slip`` (outside the friction cone; on sliding wheels, sliding), or,
+    where the env flags none (unlimited grip), outside the reference cone."""
     lines = [label.upper()] if label else []
     lines += [f"TIME   {time_s:7.2f} S", f"SPEED  {speed:+7.2f} M/S", f"DIST   {distance:7.2f} M",
               f"RETURN {episode_return:+7.1f}"]
@@ -143,9 +144,11 @@ def episode_lines(time_s: float, speed: float, distance: float, episode_return: 
             number = gait.get(key)
             return "N/A" if number is None or not math.isfinite(number) else format(number, spec)
 
+        flagged = gait.get("wheel_slip_share")
+        slip = "wheel_slip_share" if flagged is not None and math.isfinite(flagged) else "outside_friction_cone_share"
         lines += [f"GAIT   {value('dominant_joint_frequency', '7.2f')} HZ",
                   f"RATE   {value('peak_joint_rate', '7.1f')} RAD/S",
                   f"FLIPS  {value('torque_sign_flip_share', '7.0%')}",
                   f"POWER  {value('mean_power', '7.1f')} W",
-                  f"SLIP   {value('outside_friction_cone_share', '7.0%')}"]
+                  f"SLIP   {value(slip, '7.0%')}"]
     return lines

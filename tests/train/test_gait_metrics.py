@@ -127,3 +127,11 @@ def test_eval_on_sliding_wheels_reports_the_slip_share(tmp_path):
     summary = json.loads(out.read_text())
     assert 0.0 < summary["mean_wheel_slip_share"] < 1.0  # the serpenoid's start slides some wheels
     assert summary["mean_outside_friction_cone_share"] == 0.0
+
+
+def test_hud_shows_the_flagged_share_where_the_env_flags_wheels():
+    gait = {"outside_friction_cone_share": 0.0, "wheel_slip_share": 0.42}
+    assert episode_lines(1.0, 0.5, 0.5, 1.0, gait=gait)[-1].split() == ["SLIP", "42%"]
+    gait["wheel_slip_share"] = math.nan  # unlimited grip: no flags, the reference cone's share
+    gait["outside_friction_cone_share"] = 0.07
+    assert episode_lines(1.0, 0.5, 0.5, 1.0, gait=gait)[-1].split() == ["SLIP", "7%"]
