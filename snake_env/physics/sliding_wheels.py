@@ -25,6 +25,7 @@ import functools
 import math
 
 import numpy as np
+from numba import njit
 
 from snake_env.dynamics import sliding_step
 from snake_env.dynamics.lagrange import consistent_qdot
@@ -32,7 +33,7 @@ from snake_env.dynamics.lagrange import consistent_qdot
 from .sliding_reference import sliding_wheels
 from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_MOTOR_ENERGY, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_VX, AUX_VY,
                        AUX_WORK, AUX_X, AUX_Y, FAIL_ENERGY, FAIL_FOLD, FAIL_NONFINITE, FAIL_RUNAWAY, FOLD_ANGLE,
-                       MAX_SUBSTEP_ANGLE, observe, reset)
+                       MAX_SUBSTEP_ANGLE, _wrap, observe, reset)
 
 # s: the longest time-stepping substep. Semi-implicit Euler is first order: on Snake5 under random servo
 # torques at mu = 0.8 the CM after 1 s moves by 1.6e-4 m between h = 1 ms and h -> 0 (0.14 m travelled),
@@ -95,26 +96,9 @@ class SlidingWheelPhysics:
 
     def center_of_mass(self, q) -> np.ndarray:
         """The whole snake's CM (m) of every row, (B, 2)."""
-        n = q.shape[1] - 2
-        e = np.stack([np.cos(q[:, :n]), np.sin(q[:, :n])], axis=-1) * self.half_length[:, None]
-        offsets = np.concatenate([np.zeros_like(e[:, :1]), np.cumsum(e[:, :-1] + e[:, 1:], axis=1)], axis=1)
-        return q[:, n:] + np.einsum("k,bkd->bd", self.mass, offsets) / np.sum(self.mass)
-
-    def _observation(self, q, qdot, cm, obs) -> None:
-        """The env's physics observation of sliding states into ``obs``: the CM if included, the wrapped joint
-        angles, cos and sin theta_1, V_1 = e_1 . (xdot, ydot), thetadot_1, the joint rates."""
-        n = q.shape[1] - 2
-        j = 0
-        if self.params.include_position:
-            obs[:, :2] = cm
-            j = 2
-        obs[:, j:j + n - 1] = np.mod(np.diff(q[:, :n], axis=1) + math.pi, 2.0 * math.pi) - math.pi
-        j += n - 1
-        c1, s1 = np.cos(q[:, 0]), np.sin(q[:, 0])
-        obs[:, j], obs[:, j + 1] = c1, s1
-        obs[:, j + 2] = c1 * qdot[:, n] + s1 * qdot[:, n + 1]
-        obs[:, j + 3] = qdot[:, 0]
-        obs[:, j + 4:] = np.diff(qdot[:, :n], axis=1)
+        out = np.empty((q.shape[0], 2))
+        _centers(q, self.half_length, self.mass, out)
+        return out
 
     # ------------------------------------------------------------------ step
     def step(self, q, u, torques, obs, aux, forces=None, scale=None) -> None:
@@ -132,72 +116,30 @@ class SlidingWheelPhysics:
         refinements = np.zeros(B)
         residual = np.zeros(B)
         rows = np.arange(B)
-        max_refinements = params.max_refinements
         commands = np.ascontiguousarray(torques, dtype=np.float64)
-        for level in range(max_refinements + 1):
+        for level in range(params.max_refinements + 1):
             h = dt / substeps
             ok = sliding_step.advance_rows(q, self.qdot, commands, *self.constants, h, substeps, rows, self.impulse,
                                            stats, slid, self.lateral, kinetic)
-            failing = self._verdict(q, rows, ok, h, stats, kinetic, code, residual)
+            failing = rows[_verdicts(q, self.qdot, rows, ok, h, stats, kinetic, code, residual,
+                                     params.energy_tolerance, params.energy_floor)]
             if failing.size == 0:
                 break
             q[failing], self.qdot[failing] = q0[failing], qdot0[failing]
             self.impulse[failing], self.lateral[failing] = impulse0[failing], lateral0[failing]
-            if level == max_refinements:  # a simulation failure: the pre-step state is kept
+            if level == params.max_refinements:  # a simulation failure: the pre-step state is kept
                 break
             stats[failing], slid[failing], code[failing] = 0.0, 0.0, 0.0
             substeps[failing] *= 2
             refinements[failing] += 1
             rows = failing
-        good = code == 0.0
         self.last_h = dt / substeps
         self.sliding_share = slid / substeps[:, None]  # the share of the step's substeps each wheel slid
-        cm = self.center_of_mass(q)
-        if np.any(good):
-            g = np.flatnonzero(good)
-            qg, qdg = q[g], self.qdot[g]
-            u[g, 0] = np.cos(qg[:, 0]) * qdg[:, n] + np.sin(qg[:, 0]) * qdg[:, n + 1]
-            u[g, 1] = qdg[:, 0]
-            view = obs[g]
-            self._observation(qg, qdg, cm[g], view)
-            obs[g] = view
-        aux[:, AUX_X] = cm[:, 0]
-        aux[:, AUX_Y] = cm[:, 1]
-        aux[:, AUX_VX] = np.where(good, (cm[:, 0] - cm0[:, 0]) / dt, 0.0)
-        aux[:, AUX_VY] = np.where(good, (cm[:, 1] - cm0[:, 1]) / dt, 0.0)
-        aux[:, AUX_KINETIC] = np.where(good, kinetic[:, 1], kinetic[:, 0])
-        aux[:, AUX_WORK] = np.where(good, stats[:, 0] + stats[:, 1], 0.0)
-        aux[:, AUX_FAILED] = code
-        aux[:, AUX_REFINEMENTS] = refinements
-        aux[:, AUX_RESIDUAL] = residual
-        aux[:, AUX_MOTOR_ENERGY] = np.where(good, stats[:, 4], 0.0)
-        # the wheels over the last substep (a failed row: the one before its step)
-        self.slip[:] = np.abs(self.lateral) > sliding_step.SLIDE_SPEED
+        _finish(q, self.qdot, cm0, kinetic, stats, code, refinements, residual, dt, params.include_position,
+                self.half_length, self.mass, self.lateral, sliding_step.SLIDE_SPEED, obs, u, aux, self.slip)
         if forces is not None:
             forces[:] = self.impulse / self.last_h[:, None]
             scale[:] = 1.0
-
-    def _verdict(self, q, rows, ok, h, stats, kinetic, code, residual) -> np.ndarray:
-        """Check the stepped ``rows`` (module doc); write each one's failure code and relative work-energy
-        residual; return the failing rows."""
-        n = q.shape[1] - 2
-        params = self.params
-        r = rows
-        finite = ok[r] & np.all(np.isfinite(q[r]), axis=1) & np.all(np.isfinite(self.qdot[r]), axis=1)
-        k0, k1 = kinetic[r, 0], kinetic[r, 1]
-        res = np.abs(k1 - k0 - stats[r, 0] - stats[r, 1]) / (np.maximum(k0, k1) + params.energy_floor)
-        phi = np.diff(q[r, :n], axis=1)
-        wrapped = np.abs(np.mod(phi + math.pi, 2.0 * math.pi) - math.pi)
-        rates = np.concatenate([np.abs(self.qdot[r, :n]), np.abs(np.diff(self.qdot[r, :n], axis=1))], axis=1)
-        with np.errstate(invalid="ignore"):
-            fold = np.any(wrapped >= FOLD_ANGLE, axis=1)
-            runaway = np.max(rates, axis=1) * h[r] > MAX_SUBSTEP_ANGLE
-            energy = ~(res <= params.energy_tolerance)
-        verdict = np.where(~finite, FAIL_NONFINITE, np.where(energy, FAIL_ENERGY, np.where(
-            runaway, FAIL_RUNAWAY, np.where(fold, FAIL_FOLD, 0.0))))
-        code[r] = verdict
-        residual[r] = np.where(finite, res, np.nan)
-        return r[verdict != 0.0]
 
     def bind_step(self, q, u, torques, obs, aux, forces=None, scale=None):
         return functools.partial(self.step, q, u, torques, obs, aux, forces, scale)
@@ -210,3 +152,110 @@ class SlidingWheelPhysics:
         """The wheels' friction forces (N) over the last substep of every row (no traction limit: scale 1)."""
         out[:] = self.impulse / self.last_h[:, None]
         scale[:] = 1.0
+
+
+# ---------------------------------------------------------------------- compiled bookkeeping of a step
+@njit(cache=True, nogil=True)
+def _center(q, half_length, mass):
+    """The whole snake's CM (m) of one state: CM_{k+1} = CM_k + h_k e_k + h_{k+1} e_{k+1} (eq. 3)."""
+    n = q.shape[0] - 2
+    x, y = q[n], q[n + 1]
+    sx, sy, total = mass[0] * x, mass[0] * y, mass[0]
+    c_prev, s_prev = math.cos(q[0]), math.sin(q[0])
+    for k in range(1, n):
+        c, s = math.cos(q[k]), math.sin(q[k])
+        x += half_length[k - 1] * c_prev + half_length[k] * c
+        y += half_length[k - 1] * s_prev + half_length[k] * s
+        sx += mass[k] * x
+        sy += mass[k] * y
+        total += mass[k]
+        c_prev, s_prev = c, s
+    return sx / total, sy / total
+
+
+@njit(cache=True, nogil=True)
+def _centers(q, half_length, mass, out):
+    for b in range(q.shape[0]):
+        out[b, 0], out[b, 1] = _center(q[b], half_length, mass)
+
+
+@njit(cache=True, nogil=True)
+def _verdicts(q, qdot, rows, ok, h, stats, kinetic, code, residual, energy_tolerance, energy_floor):
+    """The check of the stepped ``rows`` (module doc): each one's failure code (physics.FAIL_*, 0 for a valid
+    step) and relative work-energy residual |K1 - K0 - W - W_friction| / (max(K0, K1) + floor) into ``code`` and
+    ``residual``; returns whether each of ``rows`` failed."""
+    n = q.shape[1] - 2
+    failed = np.zeros(rows.shape[0], np.bool_)
+    for i in range(rows.shape[0]):
+        b = rows[i]
+        finite = ok[b]
+        for a in range(n + 2):
+            finite = finite and math.isfinite(q[b, a]) and math.isfinite(qdot[b, a])
+        if not finite:
+            code[b] = FAIL_NONFINITE
+            residual[b] = math.nan
+            failed[i] = True
+            continue
+        k0, k1 = kinetic[b, 0], kinetic[b, 1]
+        res = abs(k1 - k0 - stats[b, 0] - stats[b, 1]) / (max(k0, k1) + energy_floor)
+        residual[b] = res
+        fastest = 0.0
+        folded = False
+        for k in range(n):
+            fastest = max(fastest, abs(qdot[b, k]))
+            if k < n - 1:
+                fastest = max(fastest, abs(qdot[b, k + 1] - qdot[b, k]))
+                folded = folded or abs(_wrap(q[b, k + 1] - q[b, k])) >= FOLD_ANGLE
+        if not res <= energy_tolerance:
+            code[b] = FAIL_ENERGY
+        elif fastest * h[b] > MAX_SUBSTEP_ANGLE:
+            code[b] = FAIL_RUNAWAY
+        elif folded:
+            code[b] = FAIL_FOLD
+        else:
+            code[b] = 0.0
+        failed[i] = code[b] != 0.0
+    return failed
+
+
+@njit(cache=True, nogil=True)
+def _finish(q, qdot, cm0, kinetic, stats, code, refinements, residual, dt, include_position, half_length, mass,
+            lateral, slide_speed, obs, u, aux, slip):
+    """Every row's u, physics observation and aux row after its step (a failed row keeps its pre-step state,
+    observation and u), and the wheels that slid on its last substep. The observation: the CM if included, the
+    wrapped joint angles, cos and sin theta_1, V_1 = e_1 . (xdot, ydot), thetadot_1, the joint rates."""
+    n = q.shape[1] - 2
+    for b in range(q.shape[0]):
+        cx, cy = _center(q[b], half_length, mass)
+        good = code[b] == 0.0
+        if good:
+            c1, s1 = math.cos(q[b, 0]), math.sin(q[b, 0])
+            u[b, 0] = c1 * qdot[b, n] + s1 * qdot[b, n + 1]
+            u[b, 1] = qdot[b, 0]
+            j = 0
+            if include_position:
+                obs[b, 0] = cx
+                obs[b, 1] = cy
+                j = 2
+            for k in range(n - 1):
+                obs[b, j + k] = _wrap(q[b, k + 1] - q[b, k])  # (-pi, pi], as the env's observation
+            j += n - 1
+            obs[b, j] = c1
+            obs[b, j + 1] = s1
+            obs[b, j + 2] = u[b, 0]
+            obs[b, j + 3] = u[b, 1]
+            j += 4
+            for k in range(n - 1):
+                obs[b, j + k] = qdot[b, k + 1] - qdot[b, k]
+        aux[b, AUX_X] = cx
+        aux[b, AUX_Y] = cy
+        aux[b, AUX_VX] = (cx - cm0[b, 0]) / dt if good else 0.0
+        aux[b, AUX_VY] = (cy - cm0[b, 1]) / dt if good else 0.0
+        aux[b, AUX_KINETIC] = kinetic[b, 1] if good else kinetic[b, 0]
+        aux[b, AUX_WORK] = stats[b, 0] + stats[b, 1] if good else 0.0
+        aux[b, AUX_FAILED] = code[b]
+        aux[b, AUX_REFINEMENTS] = refinements[b]
+        aux[b, AUX_RESIDUAL] = residual[b]
+        aux[b, AUX_MOTOR_ENERGY] = stats[b, 4] if good else 0.0
+        for k in range(n):
+            slip[b, k] = abs(lateral[b, k]) > slide_speed
