@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, field
 
 from snake_env.benchmarks import bench_report, bench_sections
 
-SECTIONS = ("single", "vector", "udot", "ppo", "memory", "startup")
+SECTIONS = ("single", "vector", "wheels", "udot", "ppo", "memory", "startup")
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,10 @@ class BenchConfig:
     vector_num_envs: tuple = (1, 8, 64, 256, 1024, 4096)
     vector_sample_time: float = 1.0  # s per repeat
     vector_rounds: int = 3
+    wheels_links: tuple = (5, 12, 20, 30)  # the sliding-wheel model's cost against the no-slip wheels'
+    wheels_num_envs: int = 32
+    wheels_sample_time: float = 1.0  # s per repeat
+    wheels_rounds: int = 3
     udot_n: tuple = (10, 20, 50, 100, 200, 500, 1000)
     udot_min_time: float = 0.05  # s of repeated calls per timing block
     udot_max_call_time: float = 0.05  # s: a slower method stops growing n
@@ -60,6 +64,7 @@ FULL = BenchConfig()
 QUICK = BenchConfig(
     single_sample_time=0.05, single_rounds=2,
     vector_num_envs=(4, 16), vector_sample_time=0.05, vector_rounds=2,
+    wheels_links=(5,), wheels_num_envs=4, wheels_sample_time=0.05, wheels_rounds=1,
     udot_n=(10, 20, 40), udot_min_time=0.002, udot_max_call_time=0.05,
     ppo_num_envs=4, ppo_rounds=1, ppo_kwargs={"n_steps": 64, "batch_size": 32, "n_epochs": 1},
     memory_num_envs=64, memory_steps=5, startup_runs=1, startup_cold=False,
@@ -114,6 +119,9 @@ def run_sections(config: BenchConfig, sections, log=print) -> dict:
     if "vector" in sections:
         attempt("vector_env", lambda: bench_sections.vector_env_speeds(
             config.vector_links, config.vector_num_envs, config.vector_sample_time, config.vector_rounds))
+    if "wheels" in sections:
+        attempt("wheels", lambda: bench_sections.wheel_model_speeds(
+            config.wheels_links, config.wheels_num_envs, config.wheels_sample_time, config.wheels_rounds))
     if "udot" in sections:
         attempt("udot", lambda: bench_sections.udot_scaling(config.udot_n, config.udot_min_time, config.udot_max_call_time))
     if "ppo" in sections:

@@ -165,6 +165,11 @@ def table_rows(results: dict) -> list[tuple[str, str, str]]:
     n_links = _get(results, "config", "vector_n_links")
     for num_envs, data in (_get(results, "vector_env") or {}).items():
         rows.append(("vector env", f"Snake{n_links}, {num_envs} envs", f"{_fmt(data['env_steps_per_s'])} env-steps/s"))
+    wheels = _get(results, "wheels") or {}
+    for n_links, data in (wheels.get("links") or {}).items():
+        rows.append(("wheel models", f"Snake{n_links}, {wheels['num_envs']} envs",
+                     f"no-slip {_fmt(data['no_slip'])}, sliding {_fmt(data['sliding'])} env-steps/s "
+                     f"(a sliding step costs {_fmt(data['cost_ratio'])}x)"))
     udot = _get(results, "udot", "seconds_per_call") or {}
     for method, times in udot.items():
         cells = ", ".join(f"n={n}: {seconds * 1e6:.3g}" for n, seconds in times.items())

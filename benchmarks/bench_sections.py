@@ -89,7 +89,7 @@ def single_env_speeds(env_ids, sample_time: float, rounds: int) -> dict:
 
 
 # --------------------------------------------------------------------------- vector env
-def vector_env_speeds(n_links: int, num_envs_list, sample_time: float, rounds: int) -> dict:
+def vector_env_speeds(n_links: int, num_envs_list, sample_time: float, rounds: int, env_kwargs=None) -> dict:
     """env-steps/s of ``gym.make_vec(..., vectorization_mode="vector_entry_point")``
     at each number of envs, each sample about ``sample_time`` seconds (autoreset included)."""
     import gymnasium as gym
@@ -98,7 +98,8 @@ def vector_env_speeds(n_links: int, num_envs_list, sample_time: float, rounds: i
 
     results = {}
     for num_envs in num_envs_list:
-        envs = gym.make_vec(snake_id(n_links), num_envs=num_envs, vectorization_mode="vector_entry_point")
+        envs = gym.make_vec(snake_id(n_links), num_envs=num_envs, vectorization_mode="vector_entry_point",
+                            **(env_kwargs or {}))
         rng = np.random.default_rng(2)
         space = envs.action_space
         actions = [rng.uniform(space.low, space.high).astype(space.dtype) for _ in range(8)]
@@ -121,6 +122,21 @@ def vector_env_speeds(n_links: int, num_envs_list, sample_time: float, rounds: i
         envs.close()
         results[str(num_envs)] = {"env_steps_per_s": max(samples), "samples": samples, "batch_steps": batch_steps}
     return results
+
+
+# --------------------------------------------------------------------------- wheel models
+def wheel_model_speeds(links, num_envs: int, sample_time: float, rounds: int) -> dict:
+    """The vector env's env-steps/s on the default no-slip wheels and on sliding wheels
+    (``wheel_model="sliding"``) at each n of ``links``, ``num_envs`` envs: what the sliding model costs."""
+    results = {}
+    for n_links in links:
+        row = {}
+        for model in ("no_slip", "sliding"):
+            speeds = vector_env_speeds(n_links, [num_envs], sample_time, rounds, {"wheel_model": model})
+            row[model] = speeds[str(num_envs)]["env_steps_per_s"]
+        row["cost_ratio"] = row["no_slip"] / row["sliding"]
+        results[str(n_links)] = row
+    return {"num_envs": num_envs, "links": results}
 
 
 # --------------------------------------------------------------------------- udot scaling

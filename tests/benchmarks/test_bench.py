@@ -40,6 +40,10 @@ def test_speeds_are_positive_and_complete(quick_run):
         assert data["env_steps_per_s"] == max(data["samples"]) > 0
     assert results["ppo"]["snake"]["fps"] > 0
     assert results["ppo"]["torch_threads"] == 1
+    for n_links in map(str, bench.QUICK.wheels_links):  # both wheel models, and what one costs against the other
+        row = results["wheels"]["links"][n_links]
+        assert row["no_slip"] > 0 and row["sliding"] > 0
+        assert row["cost_ratio"] == pytest.approx(row["no_slip"] / row["sliding"])
     if results["mujoco"]["available"]:
         assert results["single_env"]["Swimmer-v5"]["steps_per_s"] > 0
         assert results["ppo"]["swimmer"]["fps"] > 0
