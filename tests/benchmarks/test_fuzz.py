@@ -39,30 +39,20 @@ def test_reduced_fuzz_with_lag_latency_and_randomized_robots_leaks_nothing():
         assert r["residual_max"] is None or r["residual_max"] <= 1e-2 + 1e-9, r
 
 
-def test_reduced_fuzz_with_rotors_leaks_nothing():
-    """The joint motors' rotor inertia (the order of a Dynamixel's, 0.005 kg m^2) on the cells where v0
-    leaked, with the substeps the env picks: every step reported as valid is finite, balanced and unfolded."""
+@pytest.mark.parametrize("extra, num_envs, seed", [
+    ({"rotor_inertia": 0.005}, 32, 3),  # the joint motors' rotors, the order of a Dynamixel's (kg m^2)
+    ({"wheel_model": "sliding"}, 16, 4),  # the time-stepped chain with Coulomb friction at the wheels
+])
+def test_reduced_fuzz_with_rotors_or_sliding_wheels_leaks_nothing(extra, num_envs, seed):
+    """Rotor inertia, and wheels that slide, on the cells where v0 leaked, with the substeps the env picks:
+    every step reported as valid is finite, balanced and unfolded."""
     cells = [c for c in fuzz.matrix() if not c["paper_model"]
              and (c["n_links"], c["max_torque"], c["length"], c["mass"]) in fuzz.QUICK_CELLS]
-    rows = [fuzz.run_cell({**c, "rotor_inertia": 0.005}, num_envs=32, steps=32 * 40, seed=3, auto_substeps=True)
+    rows = [fuzz.run_cell({**c, **extra}, num_envs=num_envs, steps=num_envs * 40, seed=seed, auto_substeps=True)
             for c in cells]
     assert not any(r["refused"] for r in rows), [r["note"] for r in rows if r["refused"]]
     for r in rows:
-        assert r["env_steps"] + r["sim_failures"] >= 32 * 40
-        assert r["leaked"] == 0, r
-        assert r["residual_max"] is None or r["residual_max"] <= 1e-2 + 1e-9, r
-
-
-def test_reduced_fuzz_on_sliding_wheels_leaks_nothing():
-    """wheel_model="sliding" (the time-stepped chain with Coulomb friction) on the cells where v0 leaked, with
-    the substeps the env picks: every step reported as valid is finite, balanced and unfolded."""
-    cells = [c for c in fuzz.matrix() if not c["paper_model"]
-             and (c["n_links"], c["max_torque"], c["length"], c["mass"]) in fuzz.QUICK_CELLS]
-    rows = [fuzz.run_cell({**c, "wheel_model": "sliding"}, num_envs=16, steps=16 * 40, seed=4, auto_substeps=True)
-            for c in cells]
-    assert not any(r["refused"] for r in rows), [r["note"] for r in rows if r["refused"]]
-    for r in rows:
-        assert r["env_steps"] + r["sim_failures"] >= 16 * 40
+        assert r["env_steps"] + r["sim_failures"] >= num_envs * 40
         assert r["leaked"] == 0, r
         assert r["residual_max"] is None or r["residual_max"] <= 1e-2 + 1e-9, r
 
