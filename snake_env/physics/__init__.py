@@ -8,7 +8,8 @@
   :mod:`snake_env.dynamics.compiled`.
 - :mod:`.actuator_response`: the motor's torque lag and control latency, stepped
   substep by substep; :mod:`.randomization`: per-episode domain randomization, a
-  robot per row; :mod:`.batch`: which of these (or one compiled call) steps a batch.
+  robot per row; :mod:`.sliding_wheels`: wheels that slide under Coulomb friction
+  (``wheel_model="sliding"``); :mod:`.batch`: which of these (or one compiled call) steps a batch.
 
 Layers read top-down: dynamics -> physics -> controllers -> tasks -> envs ->
 wrappers; nothing here imports a layer above it.
