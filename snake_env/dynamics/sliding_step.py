@@ -129,13 +129,16 @@ def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, join
 @njit(cache=True, nogil=True)
 def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max,
             joint_limit, k_lim, c_lim, inv_room, rotor, h, substeps, impulse, stats, sliding_substeps, lateral):
-    """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held; q, qdot
-    ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are updated in
-    place. ``stats`` (5,) gets += (work of every load but friction (J), friction's work (J), the largest count
-    of active-set iterations (or PGS sweeps), substeps that fell back to PGS, the motors' energy (J): sum_k |A_k phidot_k| h, A_k the torque the motor
-    delivers); ``sliding_substeps`` (n,) counts per wheel the substeps it slid (|w_k| > SLIDE_SPEED), and
-    ``lateral`` (n,) gets the wheels' slip velocities w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg). grip: mu m_k g (N, (n,)); rotor: (n+2, n+2) rotor inertia matrix.
-    Returns False (state left NaN) if M lost definiteness or the solver did not converge."""
+    """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held.
+
+    q, qdot ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are
+    updated in place. ``stats`` (5,) gets += (work of every load but friction (J), friction's work (J), the
+    largest count of active-set iterations (or PGS sweeps), substeps that fell back to PGS, the motors' energy
+    (J): sum_k |A_k phidot_k| h with A_k the torque the motor delivers); ``sliding_substeps`` (n,) counts per
+    wheel the substeps it slid (|w_k| > SLIDE_SPEED); ``lateral`` (n,) gets the wheels' slip velocities
+    w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg); grip: mu m_k g (N,
+    (n,)); rotor: (n+2, n+2) rotor inertia matrix. Returns False (state left NaN) if M lost definiteness or
+    the solver did not converge."""
     n = q.shape[0] - 2
     N = n + 2
     cos = np.empty(n)
@@ -162,7 +165,7 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
     b = np.empty(n)
     vfree = np.empty(N)
     v_new = np.empty(N)
-    rdot = np.empty(2)
+    speed = np.empty(n)  # m/s: V_k of every link
     for _ in range(substeps):
         for k in range(n):
             cos[k] = math.cos(q[k])
@@ -203,14 +206,15 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
         for j in range(n):  # B_xy = -sum_j g_j thetadot_j^2 e_j
             bias[n] -= g[j] * qdot[j] * qdot[j] * cos[j]
             bias[n + 1] -= g[j] * qdot[j] * qdot[j] * sin[j]
+        for k in range(n):  # V_k = e_k . rdot_k (m/s), each CM's speed along its link
+            rx, ry = qdot[n], qdot[n + 1]
+            for j in range(k + 1):
+                rx -= lever[k, j] * sin[j] * qdot[j]
+                ry += lever[k, j] * cos[j] * qdot[j]
+            speed[k] = cos[k] * rx + sin[k] * ry
         for k in range(n):
             if c_wheel[k] != 0.0:  # rolling resistance -c_w V_k e_k at CM_k
-                rdot[0] = qdot[n]
-                rdot[1] = qdot[n + 1]
-                for j in range(k + 1):
-                    rdot[0] -= lever[k, j] * sin[j] * qdot[j]
-                    rdot[1] += lever[k, j] * cos[j] * qdot[j]
-                f = -c_wheel[k] * (cos[k] * rdot[0] + sin[k] * rdot[1])
+                f = -c_wheel[k] * speed[k]
                 fx, fy = f * cos[k], f * sin[k]
                 for j in range(k + 1):
                     force[j] += lever[k, j] * (-sin[j] * fx + cos[j] * fy)
@@ -237,13 +241,10 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
                 s += Y[k, a] * vfree[a]
             # + h Adot qdot: the wheel's lateral velocity a substep on, in the link's turned frame (eq. 27's
             # -Adot qdot; without it a gripping wheel's acceleration would miss it by O(1))
-            rx, ry = qdot[n], qdot[n + 1]
             curve = 0.0
             for j in range(k + 1):
-                rx -= lever[k, j] * sin[j] * qdot[j]
-                ry += lever[k, j] * cos[j] * qdot[j]
                 curve += lever[k, j] * qdot[j] * qdot[j] * (cos[k] * sin[j] - sin[k] * cos[j])
-            b[k] = s + h * (-qdot[k] * (cos[k] * rx + sin[k] * ry) - curve)
+            b[k] = s + h * (-qdot[k] * speed[k] - curve)
             _forward(L, Y[k])
         for k in range(n):  # D = A M^-1 A^T = Y Y^T
             for j in range(k + 1):
