@@ -73,7 +73,6 @@ class SlidingWheelPhysics:
         self.slip = np.zeros((B, n), np.bool_)
         self.lateral = np.zeros((B, n))  # m/s: the wheels' lateral velocities at the last substep's end
         self.last_h = np.full(B, params.dt / self.substeps)
-        self.sliding_share = np.zeros((B, n))
 
     # ------------------------------------------------------------------ state
     def reset(self, rows, noise, rng):
@@ -134,7 +133,6 @@ class SlidingWheelPhysics:
             refinements[failing] += 1
             rows = failing
         self.last_h = dt / substeps
-        self.sliding_share = slid / substeps[:, None]  # the share of the step's substeps each wheel slid
         _finish(q, self.qdot, cm0, kinetic, stats, code, refinements, residual, dt, params.include_position,
                 self.half_length, self.mass, self.lateral, sliding_step.SLIDE_SPEED, obs, u, aux, self.slip)
         if forces is not None:
