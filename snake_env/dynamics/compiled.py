@@ -111,6 +111,17 @@ def inverse_room(limit):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def barrier_torque(phi, phidot, limit, k_limit, c_limit, inv_room):
+    """s(d) (sign(phi) k d / (1 - d / R) + c phidot) (N m) of the module doc for a joint beyond its limit
+    (|phi| > limit, rad; phidot rad/s; inv_room = :func:`inverse_room`): the barrier torque is minus this."""
+    excess = phi - limit if phi > limit else phi + limit
+    d = abs(excess)
+    depth = d * inv_room
+    depth = depth if depth < BARRIER_CAP else BARRIER_CAP
+    return d / (d + LIMIT_RAMP) * (k_limit * excess / (1.0 - depth) + c_limit * phidot)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def solve_eq8(M00, M01, M11, det, r0, r1):
     """(udot_1, udot_2) of eq. 8, M udot = r, for the symmetric 2x2 M of determinant ``det``."""
     return (M11 * r0 - M01 * r1) / det, (M00 * r1 - M01 * r0) / det
@@ -234,11 +245,7 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
         T -= c_joint[k] * phidot
         if limit > 0.0:
             if phi > limit or phi < -limit:
-                excess = phi - limit if phi > limit else phi + limit
-                d = abs(excess)
-                depth = d * inv_room
-                depth = depth if depth < BARRIER_CAP else BARRIER_CAP
-                T -= d / (d + LIMIT_RAMP) * (k_limit * excess / (1.0 - depth) + c_limit * phidot)
+                T -= barrier_torque(phi, phidot, limit, k_limit, c_limit, inv_room)
         r0 += T * (nb1 - b1)
         r1 += T * (nb2 - b2)
         power += T * phidot

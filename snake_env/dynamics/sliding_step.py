@@ -47,7 +47,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .compiled import BARRIER_CAP, LIMIT_RAMP
+from .compiled import barrier_torque
 from .motor import motor_torque
 
 PGS_TOLERANCE = 1e-12  # m/s: largest violation of Coulomb's law by the wheels' lateral velocities after a solve
@@ -118,11 +118,7 @@ def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, join
             T = motor_torque(T, phidot[k], stall, inv_no_load, t_max)
         motor[k] = T
         if joint_limit > 0.0 and abs(phi[k]) > joint_limit:
-            excess = phi[k] - joint_limit if phi[k] > joint_limit else phi[k] + joint_limit
-            d = abs(excess)
-            depth = min(d * inv_room, BARRIER_CAP)
-            ramp = d / (d + LIMIT_RAMP)
-            T -= ramp * (k_lim * excess / (1.0 - depth) + c_lim * phidot[k])
+            T -= barrier_torque(phi[k], phidot[k], joint_limit, k_lim, c_lim, inv_room)
         out[k] = T - c_joint[k] * phidot[k]
 
 
