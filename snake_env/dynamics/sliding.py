@@ -195,7 +195,7 @@ class SlidingWheels:
                 np.ascontiguousarray(self.grip), np.ascontiguousarray(c_joint, dtype=np.float64),
                 np.ascontiguousarray(c_wheel, dtype=np.float64), stall, 0.0 if math.isinf(no_load) else 1.0 / no_load,
                 t_max, limit, k_limit, c_limit, compiled.inverse_room(limit) if limit > 0.0 else 0.0,
-                np.ascontiguousarray(self.rotor))
+                np.ascontiguousarray(self.rotor), np.ascontiguousarray(self.mass, dtype=np.float64))
         return self._constants
 
     def initial(self, q, qdot):

@@ -124,21 +124,304 @@ def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, join
 
 @njit(cache=True, nogil=True)
 def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max,
-            joint_limit, k_lim, c_lim, inv_room, rotor, h, substeps, impulse, stats, sliding_substeps, lateral):
+            joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, impulse, stats, sliding_substeps, lateral,
+            dense=False):
     """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held.
 
     q, qdot ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are
     updated in place. ``stats`` (5,) gets += (work of every load but friction (J), friction's work (J), the
-    largest count of active-set iterations (or PGS sweeps), substeps that fell back to PGS, the motors' energy
-    (J): sum_k |A_k phidot_k| h with A_k the torque the motor delivers); ``sliding_substeps`` (n,) counts per
-    wheel the substeps it slid (|w_k| > SLIDE_SPEED); ``lateral`` (n,) gets the wheels' slip velocities
-    w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg); grip: mu m_k g (N,
-    (n,)); rotor: (n+2, n+2) rotor inertia matrix. Returns False (state left NaN) if M lost definiteness or
-    the solver did not converge."""
+    largest count of active-set iterations (or PGS sweeps), substeps that fell back to the Delassus solve, the
+    motors' energy (J): sum_k |A_k phidot_k| h with A_k the torque the motor delivers); ``sliding_substeps`` (n,)
+    counts per wheel the substeps it slid (|w_k| > SLIDE_SPEED); ``lateral`` (n,) gets the wheels' slip
+    velocities w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg); grip: mu m_k g
+    (N, (n,)); rotor: (n+2, n+2) rotor inertia matrix; mass: m_k (kg, (n,)). ``dense``: skip the null-space solve
+    (the tests' cross-check). Returns False (state left NaN) if M lost definiteness or the solver did not
+    converge."""
     n = q.shape[0] - 2
     N = n + 2
+    half = np.empty(n)  # m: h_k, from the lever arms (c[k, 0] = h_0, c[k, k] = h_k)
+    half[0] = lever[1, 0] if n > 1 else 0.0
+    for k in range(1, n):
+        half[k] = lever[k, k]
+    rotor_on = False
+    for a in range(N):
+        for c in range(N):
+            if rotor[a, c] != 0.0:
+                rotor_on = True
     cos = np.empty(n)
     sin = np.empty(n)
+    state = np.empty(n, np.int64)  # 0: grips; +1 / -1: slides with p at +bound / -bound
+    for k in range(n):  # from the warm start (the last substep's impulses)
+        bound = grip[k] * h
+        state[k] = 1 if impulse[k] >= bound * (1.0 - 1e-12) else (-1 if impulse[k] <= -bound * (1.0 - 1e-12) else 0)
+    T = np.empty(n - 1)
+    A = np.empty(n - 1)  # the motors' torques (N m)
+    phi = np.empty(n - 1)
+    phidot = np.empty(n - 1)
+    bounds = np.empty(n)
+    V = np.empty((n, 2))  # m/s: every CM's velocity at the substep's start, and at its end
+    V_new = np.empty((n, 2))
+    acc = np.empty((n, 2))  # m/s^2: every CM's centripetal acceleration, -sum_j c_kj thetadot_j^2 e_j
+    E = np.empty((n, 2))  # N: rolling resistance less m_k acc_k, the links' share of h (Q - B)
+    torque = np.empty(n)  # N m: the joints' torques on each link, T_{k-1} - T_k
+    cterm = np.empty(n)  # m/s: h Adot qdot (module doc)
+    v_new = np.empty(N)
+    Sv = np.empty((N + 1, N))  # the null-space solve's basis S (rows) and particular solution (row m), and the
+    SV = np.empty((N + 1, n, 2))  # CM velocities of each; its reduced mass matrix S^T M S, factor, right side
+    H = np.empty((N, N))
+    Lh = np.empty((N, N))
+    rhs = np.empty(N)
+    unit = np.empty(N)
+    Z = np.empty((n, 2))
+    z = np.empty(n)
+    dv = np.empty(N)
+    for _ in range(substeps):
+        for k in range(n):
+            cos[k] = math.cos(q[k])
+            sin[k] = math.sin(q[k])
+        for k in range(n - 1):
+            phi[k] = q[k + 1] - q[k]
+            phidot[k] = qdot[k + 1] - qdot[k]
+        joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
+                      inv_room, T, A)
+        for k in range(n):
+            torque[k] = (T[k - 1] if k > 0 else 0.0) - (T[k] if k < n - 1 else 0.0)
+            bounds[k] = grip[k] * h
+        _link_velocities(qdot, cos, sin, half, V)
+        _centripetal(qdot, cos, sin, half, acc)
+        for k in range(n):
+            speed = cos[k] * V[k, 0] + sin[k] * V[k, 1]  # V_k = e_k . rdot_k (m/s), the CM's speed along its link
+            roll = -c_wheel[k] * speed  # rolling resistance -c_w V_k e_k at CM_k (N)
+            E[k, 0] = roll * cos[k] - mass[k] * acc[k, 0]
+            E[k, 1] = roll * sin[k] - mass[k] * acc[k, 1]
+            # + h Adot qdot: the wheel's lateral velocity a substep on, in the link's turned frame (eq. 27's
+            # -Adot qdot; without it a gripping wheel's acceleration would miss it by O(1)); acc_k's lateral
+            # part is -(Adot qdot)'s centripetal share
+            cterm[k] = h * (-qdot[k] * speed + (-sin[k] * acc[k, 0] + cos[k] * acc[k, 1]))
+        iterations = -1
+        if not dense:
+            iterations = _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E, torque, cterm,
+                                           bounds, h, state, impulse, v_new, V_new, lateral, Sv, SV, H, Lh, rhs, unit, Z,
+                                           z, dv)
+        if iterations < 0:
+            iterations = _delassus_solve(q, qdot, cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor, T, h,
+                                         bounds, state, impulse, v_new, lateral)
+            if iterations < 0:
+                return _fail(q, qdot)
+            _link_velocities(v_new, cos, sin, half, V_new)
+            stats[3] += 1
+        stats[2] = max(stats[2], iterations)
+        # the trapezoid work terms (module doc) as the loads' power: the joint torques on the joint rates, the
+        # rolling resistance on the CMs' velocities, friction on the wheels' lateral velocities
+        work = 0.0
+        for k in range(n - 1):
+            work += T[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])
+        friction = 0.0
+        motor_energy = 0.0  # |A_k phidot_k| by the trapezoid of the joint rates, as the work
+        for k in range(n):
+            speed = cos[k] * V[k, 0] + sin[k] * V[k, 1]
+            roll = -c_wheel[k] * speed
+            work += roll * 0.5 * (speed + cos[k] * V_new[k, 0] + sin[k] * V_new[k, 1])
+            wk_old = -sin[k] * V[k, 0] + cos[k] * V[k, 1]
+            wk_new = -sin[k] * V_new[k, 0] + cos[k] * V_new[k, 1]
+            friction += impulse[k] * 0.5 * (wk_old + wk_new)
+            if abs(lateral[k]) > SLIDE_SPEED:
+                sliding_substeps[k] += 1
+        for k in range(n - 1):
+            motor_energy += abs(A[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])) * h
+        for a in range(N):
+            qdot[a] = v_new[a]
+            q[a] += h * v_new[a]
+        stats[0] += h * work
+        stats[1] += friction
+        stats[4] += motor_energy
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _link_velocities(v, cos, sin, half, V):
+    """V (n, 2): every link's CM velocity (m/s) for the generalized velocities v (n+2,), J_k v by the chain's
+    recursion: CM_0 moves with (xdot, ydot); the joint after link k moves with the one before plus L_k thetadot_k
+    e_k_perp, and CM_k with the joint before it plus h_k thetadot_k e_k_perp (the lever arms of eq. 6)."""
+    n = V.shape[0]
+    px, py = v[n], v[n + 1]
+    V[0, 0], V[0, 1] = px, py
+    t = half[0] * v[0]
+    px, py = px - t * sin[0], py + t * cos[0]
+    for k in range(1, n):
+        t = half[k] * v[k]
+        V[k, 0], V[k, 1] = px - t * sin[k], py + t * cos[k]
+        px, py = px - 2.0 * t * sin[k], py + 2.0 * t * cos[k]
+
+
+@njit(cache=True, nogil=True)
+def _centripetal(qdot, cos, sin, half, acc):
+    """acc (n, 2): every CM's acceleration at zero angular accelerations and zero (xddot, yddot) (m/s^2),
+    Jdot_k qdot = -sum_j c_kj thetadot_j^2 e_j, by the recursion of :func:`_link_velocities`."""
+    n = acc.shape[0]
+    acc[0, 0], acc[0, 1] = 0.0, 0.0
+    t = half[0] * qdot[0] * qdot[0]
+    px, py = -t * cos[0], -t * sin[0]
+    for k in range(1, n):
+        t = half[k] * qdot[k] * qdot[k]
+        acc[k, 0], acc[k, 1] = px - t * cos[k], py - t * sin[k]
+        px, py = px - 2.0 * t * cos[k], py - 2.0 * t * sin[k]
+
+
+
+@njit(cache=True, nogil=True)
+def _propagate(u, state, cos, sin, half, cterm, inhomogeneous, v, V):
+    """v (n+2,) and V (n, 2) (every CM's velocity, m/s) of the velocities whose gripping wheels move sideways
+    with w_k = 0, parametrised by u: u_0 = thetadot_0 (wheel 0 sits at CM_0, so it never constrains it), then
+    link 0's speed along itself if wheel 0 grips or (xdot, ydot) if it slides, then thetadot_k of every sliding
+    wheel k >= 1 in order. A gripping wheel k >= 1 fixes thetadot_k from the joint before it (eq. 26's row k,
+    solved for its diagonal term h_k). ``inhomogeneous``: with A_k v = -cterm_k (the particular solution);
+    else A_k v = 0 (a null-space basis vector)."""
+    n = state.shape[0]
+    v[0] = u[0]
+    if state[0] == 0:
+        lat = -cterm[0] if inhomogeneous else 0.0
+        v[n], v[n + 1] = u[1] * cos[0] - lat * sin[0], u[1] * sin[0] + lat * cos[0]
+        i = 2
+    else:
+        v[n], v[n + 1] = u[1], u[2]
+        i = 3
+    px, py = v[n], v[n + 1]
+    V[0, 0], V[0, 1] = px, py
+    t = half[0] * v[0]
+    px, py = px - t * sin[0], py + t * cos[0]
+    for k in range(1, n):
+        if state[k] == 0:
+            c = cterm[k] if inhomogeneous else 0.0
+            v[k] = -(c + (-sin[k] * px + cos[k] * py)) / half[k]
+        else:
+            v[k] = u[i]
+            i += 1
+        t = half[k] * v[k]
+        V[k, 0], V[k, 1] = px - t * sin[k], py + t * cos[k]
+        px, py = px - 2.0 * t * sin[k], py + 2.0 * t * cos[k]
+
+
+@njit(cache=True, nogil=True)
+def _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E, torque, cterm, bounds, h, state,
+                      impulse, v_new, V_new, lateral, Sv, SV, H, Lh, rhs, unit, Z, z, dv):
+    """The module doc's complementarity problem by active sets in the gripping wheels' null space, O(n m^2) with
+    m = 2 + the sliding wheels (the Delassus solve is O(n^3)): for a guess of which wheels slide (``state``),
+    qdot+ = v_p + S u minimises 1/2 (v - qdot*)^T M (v - qdot*) - p_s . A_s v over the velocities whose gripping
+    wheels do not move sideways (v_p, S from :func:`_propagate`), so (S^T M S) u = S^T (M (qdot - v_p) + h (Q - B)
+    + A_s^T p_s), every term a sum over the links of eq. 22's m_k, I_k and CM velocities. The gripping wheels'
+    impulses then follow from each link's change of momentum, from the tail to the head (Newton-Euler on the
+    substep's impulses, with the joints' reaction impulses eliminated). The active-set rules are
+    :func:`_active_set`'s, so the solution is the same unique one, to rounding (tested). Fills v_new, V_new, impulse
+    and lateral (w = A qdot+ + cterm, m/s); returns the iterations, or -1 if it did not settle within 2 n + 8 or
+    S^T M S is not positive definite. The rotors act on the joint angles only (lagrange.rotor_inertia_matrix)."""
+    n = V.shape[0]
+    N = n + 2
+    for iteration in range(2 * n + 8):
+        m = 2
+        for k in range(n):
+            if state[k] != 0:
+                m += 1
+                impulse[k] = state[k] * bounds[k]
+        for i in range(m):
+            unit[i] = 0.0
+        _propagate(unit, state, cos, sin, half, cterm, True, Sv[m], SV[m])  # the particular solution v_p
+        for i in range(m):
+            unit[i] = 1.0
+            _propagate(unit, state, cos, sin, half, cterm, False, Sv[i], SV[i])
+            unit[i] = 0.0
+        # S^T (M (qdot - v_p) + h (Q - B) + A_s^T p_s) = sum_k Z_k . S V_k + z_k S thetadot_k
+        for a in range(N):
+            dv[a] = qdot[a] - Sv[m, a]
+        for k in range(n):
+            Z[k, 0] = mass[k] * (V[k, 0] - SV[m, k, 0]) + h * E[k, 0]
+            Z[k, 1] = mass[k] * (V[k, 1] - SV[m, k, 1]) + h * E[k, 1]
+            if state[k] != 0:
+                Z[k, 0] -= impulse[k] * sin[k]
+                Z[k, 1] += impulse[k] * cos[k]
+            z[k] = inertia[k] * dv[k] + h * torque[k]
+            if rotor_on:
+                for c in range(n):
+                    z[k] += rotor[k, c] * dv[c]
+        for i in range(m):
+            s = 0.0
+            for k in range(n):
+                s += Z[k, 0] * SV[i, k, 0] + Z[k, 1] * SV[i, k, 1] + z[k] * Sv[i, k]
+            rhs[i] = s
+            for j in range(i + 1):
+                s = 0.0
+                for k in range(n):
+                    s += mass[k] * (SV[i, k, 0] * SV[j, k, 0] + SV[i, k, 1] * SV[j, k, 1]) + inertia[k] * Sv[i, k] * Sv[j, k]
+                if rotor_on:
+                    for a in range(n):
+                        for c in range(n):
+                            s += Sv[i, a] * rotor[a, c] * Sv[j, c]
+                H[i, j] = s
+                H[j, i] = s
+        if not _cholesky(H[:m, :m], Lh[:m, :m]):
+            return -1
+        _forward(Lh[:m, :m], rhs[:m])
+        _backward(Lh[:m, :m], rhs[:m])
+        for a in range(N):
+            s = Sv[m, a]
+            for i in range(m):
+                s += rhs[i] * Sv[i, a]
+            v_new[a] = s
+        for k in range(n):
+            sx, sy = SV[m, k, 0], SV[m, k, 1]
+            for i in range(m):
+                sx += rhs[i] * SV[i, k, 0]
+                sy += rhs[i] * SV[i, k, 1]
+            V_new[k, 0], V_new[k, 1] = sx, sy
+        # the gripping wheels' impulses, from the tail: link k's momentum change (Pi, ang) is its wheel's impulse
+        # p_k e_k_perp at CM_k and the joints' reaction impulses J_k (from link k-1, at h_k behind CM_k) and
+        # -J_{k+1} (at h_k ahead); the moment about CM_k gives p_k, the force balance J_k
+        jx, jy = 0.0, 0.0
+        for k in range(n - 1, -1, -1):
+            px = mass[k] * (V_new[k, 0] - V[k, 0]) - h * E[k, 0]
+            py = mass[k] * (V_new[k, 1] - V[k, 1]) - h * E[k, 1]
+            if k == 0:
+                if state[0] == 0:
+                    impulse[0] = -sin[0] * (px + jx) + cos[0] * (py + jy)
+                break
+            if state[k] == 0:
+                ang = inertia[k] * (v_new[k] - qdot[k]) - h * torque[k]
+                if rotor_on:
+                    for c in range(n):
+                        ang += rotor[k, c] * (v_new[c] - qdot[c])
+                impulse[k] = ang / half[k] + cos[k] * (py + 2.0 * jy) - sin[k] * (px + 2.0 * jx)
+            jx += px + impulse[k] * sin[k]
+            jy += py - impulse[k] * cos[k]
+        for k in range(n):
+            lateral[k] = -sin[k] * V_new[k, 0] + cos[k] * V_new[k, 1] + cterm[k]
+        changed = False
+        for k in range(n):  # a gripping wheel that needs more than its grip slides
+            if state[k] == 0:
+                if impulse[k] > bounds[k]:
+                    state[k] = 1
+                    changed = True
+                elif impulse[k] < -bounds[k]:
+                    state[k] = -1
+                    changed = True
+        if changed:
+            continue
+        for k in range(n):  # a sliding wheel whose velocity runs with its friction grips again
+            if state[k] != 0 and state[k] * lateral[k] > PGS_TOLERANCE:
+                state[k] = 0
+                changed = True
+        if not changed:
+            return iteration + 1
+    return -1
+
+@njit(cache=True, nogil=True)
+def _delassus_solve(q, qdot, cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor, T, h, bounds, state,
+                    impulse, v_new, lateral):
+    """The module doc's problem through the Delassus matrix D = A M^-1 A^T (M from the constants G, g; O(n^3)):
+    active sets from ``state``, projected Gauss-Seidel where they do not settle. The fallback of
+    :func:`_null_space_solve` and its cross-check. Fills v_new, impulse and lateral (w = b + D p, m/s); returns the
+    iterations (or sweeps), -1 if M is not positive definite or Gauss-Seidel did not converge."""
+    n = q.shape[0] - 2
+    N = n + 2
     M = np.empty((N, N))
     L = np.empty((N, N))
     Y = np.empty((n, N))  # rows: L^-1 A^T's columns
@@ -147,161 +430,114 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
     Lff = np.empty((n, n))
     rhs = np.empty(n)
     free = np.empty(n, np.int64)
-    bounds = np.empty(n)
-    state = np.empty(n, np.int64)  # 0: grips; +1 / -1: slides with p at +bound / -bound
-    for k in range(n):  # from the warm start (the last substep's impulses)
-        bound = grip[k] * h
-        state[k] = 1 if impulse[k] >= bound * (1.0 - 1e-12) else (-1 if impulse[k] <= -bound * (1.0 - 1e-12) else 0)
     force = np.empty(N)  # Q (eq. 24's loads)
     bias = np.empty(N)  # B (eq. 24)
-    T = np.empty(n - 1)
-    A = np.empty(n - 1)  # the motors' torques (N m)
-    phi = np.empty(n - 1)
-    phidot = np.empty(n - 1)
     b = np.empty(n)
     vfree = np.empty(N)
-    v_new = np.empty(N)
     speed = np.empty(n)  # m/s: V_k of every link
-    for _ in range(substeps):
-        for k in range(n):
-            cos[k] = math.cos(q[k])
-            sin[k] = math.sin(q[k])
-        # M (eq. 25 through the constants G, g) and the rotors
-        for a in range(n):
-            for c in range(a + 1):
-                dot = sin[a] * sin[c] + cos[a] * cos[c]  # e_a_perp . e_c_perp
-                M[a, c] = G[a, c] * dot + rotor[a, c]
-                M[c, a] = M[a, c]
-            M[a, a] += inertia[a]
-            M[a, n] = -g[a] * sin[a] + rotor[a, n]
-            M[a, n + 1] = g[a] * cos[a] + rotor[a, n + 1]
-            M[n, a] = M[a, n]
-            M[n + 1, a] = M[a, n + 1]
-        M[n, n] = total_mass + rotor[n, n]
-        M[n + 1, n + 1] = total_mass + rotor[n + 1, n + 1]
-        M[n, n + 1] = rotor[n, n + 1]
-        M[n + 1, n] = rotor[n + 1, n]
-        # Q - B: joint loads (eq. 11), wheel rolling resistance along each link, minus the centripetal bias
-        for k in range(n - 1):
-            phi[k] = q[k + 1] - q[k]
-            phidot[k] = qdot[k + 1] - qdot[k]
-        joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
-                      inv_room, T, A)
-        for a in range(N):
-            force[a] = 0.0
-        for k in range(n - 1):
-            force[k] -= T[k]
-            force[k + 1] += T[k]
-        for a in range(N):
-            bias[a] = 0.0
-        for a in range(n):  # B_a = -sum_j G_aj thetadot_j^2 e_a_perp . e_j
-            s = 0.0
-            for j in range(n):
-                s += G[a, j] * qdot[j] * qdot[j] * (-sin[a] * cos[j] + cos[a] * sin[j])
-            bias[a] = -s
-        for j in range(n):  # B_xy = -sum_j g_j thetadot_j^2 e_j
-            bias[n] -= g[j] * qdot[j] * qdot[j] * cos[j]
-            bias[n + 1] -= g[j] * qdot[j] * qdot[j] * sin[j]
-        for k in range(n):  # V_k = e_k . rdot_k (m/s), each CM's speed along its link
-            rx, ry = qdot[n], qdot[n + 1]
+    # M (eq. 25 through the constants G, g) and the rotors
+    for a in range(n):
+        for c in range(a + 1):
+            dot = sin[a] * sin[c] + cos[a] * cos[c]  # e_a_perp . e_c_perp
+            M[a, c] = G[a, c] * dot + rotor[a, c]
+            M[c, a] = M[a, c]
+        M[a, a] += inertia[a]
+        M[a, n] = -g[a] * sin[a] + rotor[a, n]
+        M[a, n + 1] = g[a] * cos[a] + rotor[a, n + 1]
+        M[n, a] = M[a, n]
+        M[n + 1, a] = M[a, n + 1]
+    M[n, n] = total_mass + rotor[n, n]
+    M[n + 1, n + 1] = total_mass + rotor[n + 1, n + 1]
+    M[n, n + 1] = rotor[n, n + 1]
+    M[n + 1, n] = rotor[n + 1, n]
+    # Q - B: joint loads (eq. 11), wheel rolling resistance along each link, minus the centripetal bias
+    for a in range(N):
+        force[a] = 0.0
+    for k in range(n - 1):
+        force[k] -= T[k]
+        force[k + 1] += T[k]
+    for a in range(N):
+        bias[a] = 0.0
+    for a in range(n):  # B_a = -sum_j G_aj thetadot_j^2 e_a_perp . e_j
+        s = 0.0
+        for j in range(n):
+            s += G[a, j] * qdot[j] * qdot[j] * (-sin[a] * cos[j] + cos[a] * sin[j])
+        bias[a] = -s
+    for j in range(n):  # B_xy = -sum_j g_j thetadot_j^2 e_j
+        bias[n] -= g[j] * qdot[j] * qdot[j] * cos[j]
+        bias[n + 1] -= g[j] * qdot[j] * qdot[j] * sin[j]
+    for k in range(n):  # V_k = e_k . rdot_k (m/s), each CM's speed along its link
+        rx, ry = qdot[n], qdot[n + 1]
+        for j in range(k + 1):
+            rx -= lever[k, j] * sin[j] * qdot[j]
+            ry += lever[k, j] * cos[j] * qdot[j]
+        speed[k] = cos[k] * rx + sin[k] * ry
+    for k in range(n):
+        if c_wheel[k] != 0.0:  # rolling resistance -c_w V_k e_k at CM_k
+            f = -c_wheel[k] * speed[k]
+            fx, fy = f * cos[k], f * sin[k]
             for j in range(k + 1):
-                rx -= lever[k, j] * sin[j] * qdot[j]
-                ry += lever[k, j] * cos[j] * qdot[j]
-            speed[k] = cos[k] * rx + sin[k] * ry
-        for k in range(n):
-            if c_wheel[k] != 0.0:  # rolling resistance -c_w V_k e_k at CM_k
-                f = -c_wheel[k] * speed[k]
-                fx, fy = f * cos[k], f * sin[k]
-                for j in range(k + 1):
-                    force[j] += lever[k, j] * (-sin[j] * fx + cos[j] * fy)
-                force[n] += fx
-                force[n + 1] += fy
-        if not _cholesky(M, L):
-            return _fail(q, qdot)
+                force[j] += lever[k, j] * (-sin[j] * fx + cos[j] * fy)
+            force[n] += fx
+            force[n + 1] += fy
+    if not _cholesky(M, L):
+        return -1
+    for a in range(N):
+        vfree[a] = h * (force[a] - bias[a])
+    _forward(L, vfree)
+    _backward(L, vfree)
+    for a in range(N):
+        vfree[a] += qdot[a]
+    # A's rows (eq. 26): A_kj = c_kj e_k_perp . e_j_perp (j <= k), A_k,xy = e_k_perp; Y_k = L^-1 A_k^T
+    for k in range(n):
         for a in range(N):
-            vfree[a] = h * (force[a] - bias[a])
-        _forward(L, vfree)
-        _backward(L, vfree)
+            Y[k, a] = 0.0
+        for j in range(k + 1):
+            Y[k, j] = lever[k, j] * (sin[k] * sin[j] + cos[k] * cos[j])
+        Y[k, n] = -sin[k]
+        Y[k, n + 1] = cos[k]
+        s = 0.0
         for a in range(N):
-            vfree[a] += qdot[a]
-        # A's rows (eq. 26): A_kj = c_kj e_k_perp . e_j_perp (j <= k), A_k,xy = e_k_perp; Y_k = L^-1 A_k^T
-        for k in range(n):
+            s += Y[k, a] * vfree[a]
+        # + h Adot qdot: the wheel's lateral velocity a substep on, in the link's turned frame (eq. 27's
+        # -Adot qdot; without it a gripping wheel's acceleration would miss it by O(1))
+        curve = 0.0
+        for j in range(k + 1):
+            curve += lever[k, j] * qdot[j] * qdot[j] * (cos[k] * sin[j] - sin[k] * cos[j])
+        b[k] = s + h * (-qdot[k] * speed[k] - curve)
+        _forward(L, Y[k])
+    for k in range(n):  # D = A M^-1 A^T = Y Y^T
+        for j in range(k + 1):
+            s = 0.0
             for a in range(N):
-                Y[k, a] = 0.0
-            for j in range(k + 1):
-                Y[k, j] = lever[k, j] * (sin[k] * sin[j] + cos[k] * cos[j])
-            Y[k, n] = -sin[k]
-            Y[k, n + 1] = cos[k]
-            s = 0.0
-            for a in range(N):
-                s += Y[k, a] * vfree[a]
-            # + h Adot qdot: the wheel's lateral velocity a substep on, in the link's turned frame (eq. 27's
-            # -Adot qdot; without it a gripping wheel's acceleration would miss it by O(1))
-            curve = 0.0
-            for j in range(k + 1):
-                curve += lever[k, j] * qdot[j] * qdot[j] * (cos[k] * sin[j] - sin[k] * cos[j])
-            b[k] = s + h * (-qdot[k] * speed[k] - curve)
-            _forward(L, Y[k])
-        for k in range(n):  # D = A M^-1 A^T = Y Y^T
-            for j in range(k + 1):
-                s = 0.0
-                for a in range(N):
-                    s += Y[k, a] * Y[j, a]
-                D[k, j] = s
-                D[j, k] = s
-        # the wheels' impulses: an active-set solve from the last substep's sliding set, exact to rounding;
-        # projected Gauss-Seidel if it does not settle
+                s += Y[k, a] * Y[j, a]
+            D[k, j] = s
+            D[j, k] = s
+    # the wheels' impulses: an active-set solve from the last substep's sliding set, exact to rounding;
+    # projected Gauss-Seidel if it does not settle
+    iterations = _active_set(D, b, bounds, impulse, state, Dff, Lff, rhs, free)
+    if iterations < 0:
+        sweeps = _projected_gauss_seidel(D, b, bounds, impulse)
+        if sweeps < 0:
+            return -1
         for k in range(n):
-            bounds[k] = grip[k] * h
-        iterations = _active_set(D, b, bounds, impulse, state, Dff, Lff, rhs, free)
-        if iterations < 0:
-            sweeps = _projected_gauss_seidel(D, b, bounds, impulse)
-            if sweeps < 0:
-                return _fail(q, qdot)
-            for k in range(n):
-                state[k] = 1 if impulse[k] >= bounds[k] else (-1 if impulse[k] <= -bounds[k] else 0)
-            stats[3] += 1
-            iterations = sweeps
-        stats[2] = max(stats[2], iterations)
-        # qdot+ = qdot* + M^-1 A^T p = qdot* + L^-T (Y^T p)
-        for a in range(N):
-            s = 0.0
-            for k in range(n):
-                s += Y[k, a] * impulse[k]
-            v_new[a] = s
-        _backward(L, v_new)
-        for a in range(N):
-            v_new[a] += vfree[a]
-        # the trapezoid work terms (module doc), then the lateral velocities at the substep's end
-        work = 0.0
-        for a in range(N):
-            work += h * force[a] * 0.5 * (qdot[a] + v_new[a])
-        friction = 0.0
+            state[k] = 1 if impulse[k] >= bounds[k] else (-1 if impulse[k] <= -bounds[k] else 0)
+        iterations = sweeps
+    # qdot+ = qdot* + M^-1 A^T p = qdot* + L^-T (Y^T p)
+    for a in range(N):
+        s = 0.0
         for k in range(n):
-            wk_old = -sin[k] * qdot[n] + cos[k] * qdot[n + 1]
-            wk_new = -sin[k] * v_new[n] + cos[k] * v_new[n + 1]
-            for j in range(k + 1):
-                a_kj = lever[k, j] * (sin[k] * sin[j] + cos[k] * cos[j])
-                wk_old += a_kj * qdot[j]
-                wk_new += a_kj * v_new[j]
-            friction += impulse[k] * 0.5 * (wk_old + wk_new)
-            slip = b[k]  # the complementarity problem's w_k = b_k + (D p)_k: zero where the wheel grips
-            for j in range(n):
-                slip += D[k, j] * impulse[j]
-            lateral[k] = slip
-            if abs(slip) > SLIDE_SPEED:
-                sliding_substeps[k] += 1
-        motor_energy = 0.0  # |A_k phidot_k| by the trapezoid of the joint rates, as the work
-        for k in range(n - 1):
-            motor_energy += abs(A[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])) * h
-        for a in range(N):
-            qdot[a] = v_new[a]
-            q[a] += h * v_new[a]
-        stats[0] += work
-        stats[1] += friction
-        stats[4] += motor_energy
-    return True
-
+            s += Y[k, a] * impulse[k]
+        v_new[a] = s
+    _backward(L, v_new)
+    for a in range(N):
+        v_new[a] += vfree[a]
+    for k in range(n):  # the complementarity problem's w_k = b_k + (D p)_k: zero where the wheel grips
+        slip = b[k]
+        for j in range(n):
+            slip += D[k, j] * impulse[j]
+        lateral[k] = slip
+    return iterations
 
 
 @njit(cache=True, nogil=True)
@@ -429,7 +665,7 @@ def kinetic_energy(q, qdot, G, g, total_mass, inertia, rotor):
 
 @njit(cache=True, nogil=True)
 def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load,
-                 t_max, joint_limit, k_lim, c_lim, inv_room, rotor, h, substeps, rows, impulse, stats, sliding_substeps,
+                 t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows, impulse, stats, sliding_substeps,
                  lateral, kinetic):
     """:func:`advance` of the rows ``rows`` of a batch (q, qdot (B, n+2), commands (B, n-1), impulse and
     sliding_substeps and lateral (B, n), stats (B, 5), all in place; h and substeps (B,) per row) and the kinetic energy
@@ -438,7 +674,8 @@ def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_jo
     for b in rows:
         kinetic[b, 0] = kinetic_energy(q[b], qdot[b], G, g, total_mass, inertia, rotor)
         ok[b] = advance(q[b], qdot[b], commands[b], G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
-                        inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, h[b], substeps[b], impulse[b],
+                        inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h[b], substeps[b],
+                        impulse[b],
                         stats[b], sliding_substeps[b], lateral[b])
         kinetic[b, 1] = kinetic_energy(q[b], qdot[b], G, g, total_mass, inertia, rotor) if ok[b] else math.nan
     return ok

@@ -28,7 +28,7 @@ def step(wheels, y, substeps, steps, command=COMMAND):
 def test_kinetic_energy_is_eq_22_with_rotors(start):
     model, q, qdot = start
     wheels = SlidingWheels(model, 0.8, rotor_inertia=np.full(N - 1, 0.004), **SERVO)
-    G, g, total, inertia, _, _, _, _, _, _, _, _, _, _, _, rotor = wheels.compiled_constants()
+    G, g, total, inertia, _, _, _, _, _, _, _, _, _, _, _, rotor, _ = wheels.compiled_constants()
     rng = np.random.default_rng(1)
     for _ in range(5):
         qq = np.concatenate([rng.uniform(-2, 2, N), rng.normal(size=2)])
