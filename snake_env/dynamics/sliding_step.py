@@ -18,11 +18,21 @@ Coulomb's law at the substep's end, w = A qdot+ the wheels' lateral velocities (
 With D = A M^-1 A^T (the wheels' Delassus matrix, symmetric positive definite) and b = A qdot* + h Adot qdot
 (qdot* = qdot + h M^-1 (Q - B) the free velocity; the second term carries each wheel's lateral velocity into
 its link's frame a substep on, so that a gripping wheel accelerates as eq. 27's A qddot = -Adot qdot says),
-w = b + D p: a box-constrained linear complementarity problem. D is positive definite, so its solution is unique (a strictly convex quadratic program). It is solved
-by active sets, exactly to rounding: from the last substep's sliding wheels, the gripping wheels' impulses solve
-their block of D, a wheel that needs more than its grip slides, a sliding wheel whose velocity runs with its
-friction grips again (one Cholesky solve when nothing changes, the common case); where that does not settle,
-by projected Gauss-Seidel to a residual of ``PGS_TOLERANCE``.
+w = b + D p: a box-constrained linear complementarity problem. D is positive definite, so its solution is unique (a
+strictly convex quadratic program; its primal: qdot+ minimises 1/2 (v - qdot*)^T M (v - qdot*) + sum_k mu m_k g h
+|A_k v + c_k|, c = h Adot qdot). It is solved by active sets, exactly to rounding: from the last substep's sliding wheels, the
+gripping wheels are held at w_k = 0 and the sliding ones at their friction; a wheel that needs more than its grip
+slides, a sliding wheel whose velocity runs with its friction grips again (one solve when nothing changes, the
+common case). Three formulations of that solve, equal to rounding (tested):
+
+- :func:`_recursive_solve` (the default, O(n) per iteration): dynamic programming along the chain from the tail,
+  as the articulated-body algorithm does for M^-1; each link's angular rate is an affine function of the joint
+  before it, fixed by its wheel if it grips, minimising if it slides;
+- :func:`_null_space_solve` (with rotors, whose inertia couples neighbouring joints; O(n m^2), m = 2 + the sliding
+  wheels): the same minimisation over an explicit basis of the gripping wheels' null space;
+- :func:`_delassus_solve` (the fallback of both; O(n^3)): the gripping wheels' block of D by Cholesky, and
+  projected Gauss-Seidel to a residual of ``PGS_TOLERANCE`` where active sets do not settle.
+
 As mu grows every wheel grips and the step becomes a velocity projection onto the no-slip constraint:
 its trajectories converge to eq. 27's as h -> 0 (tested against the Kane sweep). Friction is implicit,
 so there is no stiff lateral time constant to resolve: h follows from the joints' own rates (motor,
@@ -33,7 +43,8 @@ torque-speed band and current limit (:func:`.motor.motor_torque`), joint and whe
 joint-limit barrier, the rotors' inertia in M. M and B are O(n^2) through model constants
 (``G[a, b] = sum_k m_k c_ka c_kb``, c the lever arms of :func:`.lagrange.lever_arms`), so that
 M_ab = G_ab e_a_perp . e_b_perp + I_a delta_ab, M_a,xy = g_a e_a_perp with g_a = sum_k m_k c_ka, and
-B_a = -sum_j G_aj thetadot_j^2 e_a_perp . e_j; the solve is O(n^3) with small constants.
+B_a = -sum_j G_aj thetadot_j^2 e_a_perp . e_j (the Delassus solve's terms; the other two take the same loads link
+by link: each CM's velocity and centripetal acceleration by the chain's recursion, O(n)).
 
 Energy: with M frozen over a substep, Delta K = (h (Q - B) + A^T p) . (qdot + qdot+) / 2 exactly, and
 B's share cancels M's change to O(h^2): the step's ``work`` and ``friction_work`` sum those two
@@ -125,7 +136,7 @@ def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, join
 @njit(cache=True, nogil=True)
 def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max,
             joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, impulse, stats, sliding_substeps, lateral,
-            dense=False):
+            method=0):
     """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held.
 
     q, qdot ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are
@@ -134,8 +145,9 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
     motors' energy (J): sum_k |A_k phidot_k| h with A_k the torque the motor delivers); ``sliding_substeps`` (n,)
     counts per wheel the substeps it slid (|w_k| > SLIDE_SPEED); ``lateral`` (n,) gets the wheels' slip
     velocities w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg); grip: mu m_k g
-    (N, (n,)); rotor: (n+2, n+2) rotor inertia matrix; mass: m_k (kg, (n,)). ``dense``: skip the null-space solve
-    (the tests' cross-check). Returns False (state left NaN) if M lost definiteness or the solver did not
+    (N, (n,)); rotor: (n+2, n+2) rotor inertia matrix; mass: m_k (kg, (n,)). ``method``: the friction solve, 0 the
+    fastest that applies (:func:`_recursive_solve`, :func:`_null_space_solve` with rotors), 1 the null-space solve,
+    2 the Delassus solve (each falls back to the Delassus solve; the tests compare the three). Returns False (state left NaN) if M lost definiteness or the solver did not
     converge."""
     n = q.shape[0] - 2
     N = n + 2
@@ -175,6 +187,10 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
     Z = np.empty((n, 2))
     z = np.empty(n)
     dv = np.empty(N)
+    Ak = np.empty((n, 2, 2))  # the recursive solve's quadratics of the links beyond each joint, and thetadot_k's
+    bk = np.empty((n, 2))  # affine dependence on the joint before it
+    alpha = np.empty((n, 2))
+    beta = np.empty(n)
     for _ in range(substeps):
         for k in range(n):
             cos[k] = math.cos(q[k])
@@ -199,7 +215,10 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
             # part is -(Adot qdot)'s centripetal share
             cterm[k] = h * (-qdot[k] * speed + (-sin[k] * acc[k, 0] + cos[k] * acc[k, 1]))
         iterations = -1
-        if not dense:
+        if method == 0 and not rotor_on:
+            iterations = _recursive_solve(qdot, cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds, h,
+                                          state, impulse, v_new, V_new, lateral, Ak, bk, alpha, beta, Z)
+        elif method <= 1:
             iterations = _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E, torque, cterm,
                                            bounds, h, state, impulse, v_new, V_new, lateral, Sv, SV, H, Lh, rhs, unit, Z,
                                            z, dv)
@@ -373,45 +392,176 @@ def _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E
                 sx += rhs[i] * SV[i, k, 0]
                 sy += rhs[i] * SV[i, k, 1]
             V_new[k, 0], V_new[k, 1] = sx, sy
-        # the gripping wheels' impulses, from the tail: link k's momentum change (Pi, ang) is its wheel's impulse
-        # p_k e_k_perp at CM_k and the joints' reaction impulses J_k (from link k-1, at h_k behind CM_k) and
-        # -J_{k+1} (at h_k ahead); the moment about CM_k gives p_k, the force balance J_k
-        jx, jy = 0.0, 0.0
-        for k in range(n - 1, -1, -1):
-            px = mass[k] * (V_new[k, 0] - V[k, 0]) - h * E[k, 0]
-            py = mass[k] * (V_new[k, 1] - V[k, 1]) - h * E[k, 1]
-            if k == 0:
-                if state[0] == 0:
-                    impulse[0] = -sin[0] * (px + jx) + cos[0] * (py + jy)
-                break
-            if state[k] == 0:
-                ang = inertia[k] * (v_new[k] - qdot[k]) - h * torque[k]
-                if rotor_on:
-                    for c in range(n):
-                        ang += rotor[k, c] * (v_new[c] - qdot[c])
-                impulse[k] = ang / half[k] + cos[k] * (py + 2.0 * jy) - sin[k] * (px + 2.0 * jx)
-            jx += px + impulse[k] * sin[k]
-            jy += py - impulse[k] * cos[k]
+        _wheel_impulses(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, V_new, v_new, E, torque, h, state,
+                        impulse)
         for k in range(n):
             lateral[k] = -sin[k] * V_new[k, 0] + cos[k] * V_new[k, 1] + cterm[k]
-        changed = False
-        for k in range(n):  # a gripping wheel that needs more than its grip slides
-            if state[k] == 0:
-                if impulse[k] > bounds[k]:
-                    state[k] = 1
-                    changed = True
-                elif impulse[k] < -bounds[k]:
-                    state[k] = -1
-                    changed = True
-        if changed:
+        if _switch(state, impulse, bounds, lateral):
             continue
-        for k in range(n):  # a sliding wheel whose velocity runs with its friction grips again
-            if state[k] != 0 and state[k] * lateral[k] > PGS_TOLERANCE:
-                state[k] = 0
-                changed = True
-        if not changed:
-            return iteration + 1
+        return iteration + 1
     return -1
+
+@njit(cache=True, nogil=True)
+def _recursive_solve(qdot, cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds, h, state, impulse, v_new,
+                     V_new, lateral, Ak, bk, alpha, beta, Zp):
+    """:func:`_null_space_solve`'s problem in O(n) per active-set iteration, for chains without rotors: the
+    same minimisation, 1/2 v^T M v - v . (M qdot + h (Q - B) + A_s^T p_s) over the velocities whose gripping wheels
+    do not move sideways, by dynamic programming along the chain (as the articulated-body algorithm does for
+    M^-1). The objective is a sum over the links of 1/2 m_k |V_k|^2 + 1/2 I_k thetadot_k^2 - Z_k . V_k -
+    z_k thetadot_k (eq. 22's kinetic energy less the momentum and the impulses to reach), and link k's CM and the
+    joint after it move with the joint before it, P_k, and thetadot_k (:func:`_link_velocities`). So, from the
+    tail, the least value of the links k.. given P_k is a quadratic 1/2 P^T A_k P - b_k . P: a gripping wheel
+    fixes thetadot_k as an affine function of P_k (eq. 26's row), a sliding one's thetadot_k minimises it (a
+    scalar), and either way thetadot_k = alpha_k . P_k + beta_k. At the head, (xdot, ydot, thetadot_0) minimise
+    what is left (a 3 x 3 problem, 2 x 2 if wheel 0 grips); a forward pass gives qdot+. The impulses and the
+    active-set rules are :func:`_null_space_solve`'s. Returns the iterations, or -1 (not settled within 2 n + 8,
+    or a head problem that is not positive definite)."""
+    n = V.shape[0]
+    N = n + 2
+    K = np.empty((3, 3))
+    Lk = np.empty((3, 3))
+    f = np.empty(3)
+    for iteration in range(2 * n + 8):
+        for k in range(n):
+            if state[k] != 0:
+                impulse[k] = state[k] * bounds[k]
+            Zp[k, 0] = mass[k] * V[k, 0] + h * E[k, 0]
+            Zp[k, 1] = mass[k] * V[k, 1] + h * E[k, 1]
+            if state[k] != 0:
+                Zp[k, 0] -= impulse[k] * sin[k]
+                Zp[k, 1] += impulse[k] * cos[k]
+        a00 = a01 = a11 = b0 = b1 = 0.0  # A_{k+1}, b_{k+1}: nothing beyond the tail
+        for k in range(n - 1, 0, -1):
+            hk, ex, ey = half[k], -sin[k], cos[k]  # e_k_perp
+            z = inertia[k] * qdot[k] + h * torque[k]
+            if state[k] == 0:  # e_k_perp . (P + h_k thetadot e_k_perp) = -cterm_k
+                al0, al1, be = -ex / hk, -ey / hk, -cterm[k] / hk
+            else:  # d/dthetadot of the links k.. = 0
+                Ae0, Ae1 = a00 * ex + a01 * ey, a01 * ex + a11 * ey
+                curv = mass[k] * hk * hk + inertia[k] + 4.0 * hk * hk * (ex * Ae0 + ey * Ae1)
+                al0 = -(mass[k] * hk * ex + 2.0 * hk * Ae0) / curv
+                al1 = -(mass[k] * hk * ey + 2.0 * hk * Ae1) / curv
+                be = (hk * (Zp[k, 0] * ex + Zp[k, 1] * ey) + z + 2.0 * hk * (ex * b0 + ey * b1)) / curv
+            alpha[k, 0], alpha[k, 1], beta[k] = al0, al1, be
+            # V_k = T1 P + t1, P_{k+1} = T2 P + t2 (T = I + s e_perp alpha^T, t = s beta e_perp; s = h_k, 2 h_k)
+            p00, p01, p10, p11 = 1.0 + hk * ex * al0, hk * ex * al1, hk * ey * al0, 1.0 + hk * ey * al1
+            q00, q01, q10, q11 = 1.0 + 2 * hk * ex * al0, 2 * hk * ex * al1, 2 * hk * ey * al0, 1.0 + 2 * hk * ey * al1
+            t1x, t1y, t2x, t2y = hk * be * ex, hk * be * ey, 2 * hk * be * ex, 2 * hk * be * ey
+            # A' T2 and A' t2 - b'
+            m00, m01 = a00 * q00 + a01 * q10, a00 * q01 + a01 * q11
+            m10, m11 = a01 * q00 + a11 * q10, a01 * q01 + a11 * q11
+            r0, r1 = a00 * t2x + a01 * t2y - b0, a01 * t2x + a11 * t2y - b1
+            mk, ik = mass[k], inertia[k]
+            n00 = mk * (p00 * p00 + p10 * p10) + ik * al0 * al0 + q00 * m00 + q10 * m10
+            n01 = mk * (p00 * p01 + p10 * p11) + ik * al0 * al1 + q00 * m01 + q10 * m11
+            n11 = mk * (p01 * p01 + p11 * p11) + ik * al1 * al1 + q01 * m01 + q11 * m11
+            # b_k = -(m T1^T t1 + I alpha beta - T1^T Z - alpha z + T2^T (A' t2 - b'))
+            c0 = mk * (p00 * t1x + p10 * t1y) + ik * al0 * be - (p00 * Zp[k, 0] + p10 * Zp[k, 1]) - al0 * z \
+                + q00 * r0 + q10 * r1
+            c1 = mk * (p01 * t1x + p11 * t1y) + ik * al1 * be - (p01 * Zp[k, 0] + p11 * Zp[k, 1]) - al1 * z \
+                + q01 * r0 + q11 * r1
+            Ak[k, 0, 0], Ak[k, 0, 1], Ak[k, 1, 1], bk[k, 0], bk[k, 1] = n00, n01, n11, -c0, -c1
+            a00, a01, a11, b0, b1 = n00, n01, n11, -c0, -c1
+        # the head: x = (xdot, ydot, thetadot_0), P_1 = (xdot, ydot) + h_0 thetadot_0 e_0_perp = W x
+        h0, ex, ey = half[0], -sin[0], cos[0]
+        w0, w1 = h0 * ex, h0 * ey  # W's third column
+        K[0, 0], K[0, 1], K[1, 1] = mass[0] + a00, a01, mass[0] + a11
+        K[0, 2] = a00 * w0 + a01 * w1
+        K[1, 2] = a01 * w0 + a11 * w1
+        K[2, 2] = inertia[0] + w0 * K[0, 2] + w1 * K[1, 2]
+        K[1, 0], K[2, 0], K[2, 1] = K[0, 1], K[0, 2], K[1, 2]
+        f[0] = Zp[0, 0] + b0
+        f[1] = Zp[0, 1] + b1
+        f[2] = inertia[0] * qdot[0] + h * torque[0] + w0 * b0 + w1 * b1
+        if state[0] == 0:  # (xdot, ydot) = v_f e_0 + lat e_0_perp with lat = -cterm_0: solve for (v_f, thetadot_0)
+            lat = -cterm[0]
+            c, s = cos[0], sin[0]
+            fx = f[0] - (K[0, 0] * ex + K[0, 1] * ey) * lat
+            fy = f[1] - (K[1, 0] * ex + K[1, 1] * ey) * lat
+            ft = f[2] - (K[2, 0] * ex + K[2, 1] * ey) * lat
+            r00 = c * (K[0, 0] * c + K[0, 1] * s) + s * (K[1, 0] * c + K[1, 1] * s)
+            r01 = c * K[0, 2] + s * K[1, 2]
+            r11 = K[2, 2]
+            g0, g1 = c * fx + s * fy, ft
+            det = r00 * r11 - r01 * r01
+            if not (r00 > 0.0 and det > 0.0):
+                return -1
+            vf = (r11 * g0 - r01 * g1) / det
+            th0 = (r00 * g1 - r01 * g0) / det
+            rx, ry = vf * c + lat * ex, vf * s + lat * ey
+        else:
+            if not _cholesky(K, Lk):
+                return -1
+            _forward(Lk, f)
+            _backward(Lk, f)
+            rx, ry, th0 = f[0], f[1], f[2]
+        v_new[0], v_new[n], v_new[n + 1] = th0, rx, ry
+        V_new[0, 0], V_new[0, 1] = rx, ry
+        px, py = rx + th0 * w0, ry + th0 * w1
+        for k in range(1, n):
+            t = alpha[k, 0] * px + alpha[k, 1] * py + beta[k]
+            v_new[k] = t
+            t *= half[k]
+            V_new[k, 0], V_new[k, 1] = px - t * sin[k], py + t * cos[k]
+            px, py = px - 2.0 * t * sin[k], py + 2.0 * t * cos[k]
+        _wheel_impulses(qdot, cos, sin, half, mass, inertia, rotor, False, V, V_new, v_new, E, torque, h, state,
+                        impulse)
+        for k in range(n):
+            lateral[k] = -sin[k] * V_new[k, 0] + cos[k] * V_new[k, 1] + cterm[k]
+        if _switch(state, impulse, bounds, lateral):
+            continue
+        return iteration + 1
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _wheel_impulses(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, V_new, v_new, E, torque, h, state,
+                    impulse):
+    """The gripping wheels' impulses p_k (N s) of a substep from qdot to v_new (V, V_new: the CMs' velocities),
+    from the tail: link k's momentum change (Pi, ang) is its wheel's impulse p_k e_k_perp at CM_k and the joints'
+    reaction impulses J_k (from link k-1, at h_k behind CM_k) and -J_{k+1} (at h_k ahead), beside h times its
+    loads (E, torque); the moment about CM_k gives p_k, the force balance J_k (Newton-Euler on the substep's
+    impulses). Sliding wheels keep theirs."""
+    n = V.shape[0]
+    jx, jy = 0.0, 0.0
+    for k in range(n - 1, -1, -1):
+        px = mass[k] * (V_new[k, 0] - V[k, 0]) - h * E[k, 0]
+        py = mass[k] * (V_new[k, 1] - V[k, 1]) - h * E[k, 1]
+        if k == 0:
+            if state[0] == 0:
+                impulse[0] = -sin[0] * (px + jx) + cos[0] * (py + jy)
+            break
+        if state[k] == 0:
+            ang = inertia[k] * (v_new[k] - qdot[k]) - h * torque[k]
+            if rotor_on:
+                for c in range(n):
+                    ang += rotor[k, c] * (v_new[c] - qdot[c])
+            impulse[k] = ang / half[k] + cos[k] * (py + 2.0 * jy) - sin[k] * (px + 2.0 * jx)
+        jx += px + impulse[k] * sin[k]
+        jy += py - impulse[k] * cos[k]
+
+
+@njit(cache=True, nogil=True)
+def _switch(state, impulse, bounds, lateral):
+    """One active-set update (:func:`_active_set`'s rules): a gripping wheel that needs more than its grip slides;
+    if none does, a sliding wheel whose velocity runs with its friction grips again. True if anything changed."""
+    changed = False
+    for k in range(state.shape[0]):
+        if state[k] == 0:
+            if impulse[k] > bounds[k]:
+                state[k] = 1
+                changed = True
+            elif impulse[k] < -bounds[k]:
+                state[k] = -1
+                changed = True
+    if changed:
+        return True
+    for k in range(state.shape[0]):
+        if state[k] != 0 and state[k] * lateral[k] > PGS_TOLERANCE:
+            state[k] = 0
+            changed = True
+    return changed
+
 
 @njit(cache=True, nogil=True)
 def _delassus_solve(q, qdot, cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor, T, h, bounds, state,
@@ -647,18 +797,24 @@ def _fail(q, qdot):
 
 
 @njit(cache=True, nogil=True)
-def kinetic_energy(q, qdot, G, g, total_mass, inertia, rotor):
-    """1/2 qdot^T M qdot (J) of one state, rotors included (M as :func:`advance` builds it)."""
+def kinetic_energy(q, qdot, lever, mass, inertia, rotor):
+    """1/2 qdot^T M qdot (J) of one state, rotors included: eq. 22's sum over the links of 1/2 m_k |V_k|^2 +
+    1/2 I_k thetadot_k^2 (the CM velocities by :func:`_link_velocities`, O(n)) and the rotors' 1/2 qdot^T R qdot."""
     n = q.shape[0] - 2
-    K = 0.5 * total_mass * (qdot[n] * qdot[n] + qdot[n + 1] * qdot[n + 1])
-    for a in range(n):
-        ca, sa = math.cos(q[a]), math.sin(q[a])
-        K += 0.5 * inertia[a] * qdot[a] * qdot[a]
-        K += qdot[a] * g[a] * (-sa * qdot[n] + ca * qdot[n + 1])
-        for c in range(n):
-            K += 0.5 * G[a, c] * (sa * math.sin(q[c]) + ca * math.cos(q[c])) * qdot[a] * qdot[c]
-    for a in range(n + 2):
-        for c in range(n + 2):
+    cos = np.empty(n)
+    sin = np.empty(n)
+    half = np.empty(n)
+    for k in range(n):
+        cos[k] = math.cos(q[k])
+        sin[k] = math.sin(q[k])
+        half[k] = lever[k, k] if k > 0 else (lever[1, 0] if n > 1 else 0.0)
+    V = np.empty((n, 2))
+    _link_velocities(qdot, cos, sin, half, V)
+    K = 0.0
+    for k in range(n):
+        K += 0.5 * (mass[k] * (V[k, 0] * V[k, 0] + V[k, 1] * V[k, 1]) + inertia[k] * qdot[k] * qdot[k])
+    for a in range(n):  # the rotors act on neighbouring joint angles only (lagrange.rotor_inertia_matrix)
+        for c in range(max(a - 1, 0), min(a + 2, n)):
             K += 0.5 * rotor[a, c] * qdot[a] * qdot[c]
     return K
 
@@ -672,10 +828,10 @@ def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_jo
     before and after each step into ``kinetic`` (B, 2) (J). Returns ok (B,) (False: that row is NaN)."""
     ok = np.ones(q.shape[0], np.bool_)
     for b in rows:
-        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], G, g, total_mass, inertia, rotor)
+        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
         ok[b] = advance(q[b], qdot[b], commands[b], G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
                         inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h[b], substeps[b],
                         impulse[b],
                         stats[b], sliding_substeps[b], lateral[b])
-        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], G, g, total_mass, inertia, rotor) if ok[b] else math.nan
+        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor) if ok[b] else math.nan
     return ok

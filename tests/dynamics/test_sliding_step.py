@@ -28,12 +28,12 @@ def step(wheels, y, substeps, steps, command=COMMAND):
 def test_kinetic_energy_is_eq_22_with_rotors(start):
     model, q, qdot = start
     wheels = SlidingWheels(model, 0.8, rotor_inertia=np.full(N - 1, 0.004), **SERVO)
-    G, g, total, inertia, _, _, _, _, _, _, _, _, _, _, _, rotor, _ = wheels.compiled_constants()
+    _, _, _, inertia, lever, _, _, _, _, _, _, _, _, _, _, rotor, mass = wheels.compiled_constants()
     rng = np.random.default_rng(1)
     for _ in range(5):
         qq = np.concatenate([rng.uniform(-2, 2, N), rng.normal(size=2)])
         qd = rng.normal(size=N + 2)
-        assert sliding_step.kinetic_energy(qq, qd, G, g, total, inertia, rotor) == pytest.approx(
+        assert sliding_step.kinetic_energy(qq, qd, lever, mass, inertia, rotor) == pytest.approx(
             wheels.kinetic_energy(qq, qd), rel=1e-12)
 
 
@@ -182,3 +182,37 @@ def test_active_set_and_gauss_seidel_find_the_same_unique_solution():
         assert np.all(np.abs(exact) <= bounds * (1 + 1e-12))
         assert np.all(-np.sign(exact[~grips]) * w[~grips] >= -1e-9)  # friction against the slide
     assert settled > 290
+
+
+@pytest.mark.parametrize("n, rotor", [(2, 0.0), (3, 0.0), (5, 0.0), (12, 0.004), (30, 0.0)])
+def test_the_three_friction_solves_agree(n, rotor):
+    """The O(n) recursive solve, the null-space solve and the Delassus-matrix solve are three formulations of one
+    strictly convex problem: on random states, torques and warm starts (wheels gripping and sliding) they give the
+    same velocities and impulses to rounding, and each obeys Coulomb's law."""
+    model = SnakeModel(n, mass=1.0, length=0.2, inertia=0.005, joint_damping=0.01, wheel_damping=0.1)
+    wheels = SlidingWheels(model, 0.8, rotor_inertia=np.full(n - 1, rotor) if rotor else None, **SERVO)
+    constants = wheels.compiled_constants()
+    grip, h = constants[5], 1e-3
+    rng = np.random.default_rng(n)
+    states = {"grip": 0, "slide": 0}
+    for _ in range(40):
+        q = np.concatenate([rng.uniform(-1, 1, n), rng.normal(size=2)])
+        qdot = rng.normal(size=n + 2) * rng.uniform(0.05, 2.0)
+        command = rng.uniform(-1, 1, n - 1)
+        warm = rng.uniform(-1, 1, n) * grip * h * rng.integers(0, 2)
+        results = []
+        for method in (0, 1, 2):
+            qq, qd, p, lateral, stats = q.copy(), qdot.copy(), warm.copy(), np.zeros(n), np.zeros(5)
+            assert sliding_step.advance(qq, qd, command, *constants, h, 1, p, stats, np.zeros(n), lateral, method)
+            assert stats[3] == (1 if method == 2 else 0)  # no solve fell back to the Delassus matrix
+            results.append((qd, p, lateral))
+        reference = results[2]
+        for qd, p, lateral in results[:2]:
+            np.testing.assert_allclose(qd, reference[0], rtol=0, atol=1e-12 * (1 + np.max(np.abs(reference[0]))))
+            np.testing.assert_allclose(p, reference[1], rtol=0, atol=1e-11 * np.max(grip * h))
+            sliding = np.abs(lateral) > sliding_step.SLIDE_SPEED
+            np.testing.assert_allclose(p[sliding], -grip[sliding] * h * np.sign(lateral[sliding]), rtol=1e-12)
+            assert np.all(np.abs(p) <= grip * h * (1 + 1e-12))
+            states["slide"] += int(np.sum(sliding))
+            states["grip"] += int(np.sum(~sliding))
+    assert min(states.values()) > 0  # both kinds of wheel were tested
