@@ -175,8 +175,16 @@ class SlidingWheels:
         impulse = np.zeros(n) if impulse is None else impulse
         stats = np.zeros(5)
         slid = np.zeros(n)
+        start = (q.copy(), qdot.copy(), impulse.copy())
         ok = sliding_step.advance(q, qdot, np.asarray(command, dtype=np.float64), *self.compiled_constants(),
-                                  dt / substeps, substeps, impulse, stats, slid, np.zeros(n))
+                                  dt / substeps, substeps, impulse, stats, slid, np.zeros(n),
+                                  sliding_step.solve_method(self.rotor))
+        if not ok:  # the fast solve did not settle: the step again with the Delassus solve
+            q, qdot = start[0].copy(), start[1].copy()
+            impulse[:] = start[2]
+            stats[:], slid[:] = 0.0, 0.0
+            ok = sliding_step.advance(q, qdot, np.asarray(command, dtype=np.float64), *self.compiled_constants(),
+                                      dt / substeps, substeps, impulse, stats, slid, np.zeros(n), 2)
         if not ok or not (np.all(np.isfinite(q)) and np.all(np.isfinite(qdot))):
             raise RuntimeError("sliding-wheel model: the time step failed (a singular mass matrix or an "
                                "unconverged friction solve)")

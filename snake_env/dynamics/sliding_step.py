@@ -18,20 +18,22 @@ Coulomb's law at the substep's end, w = A qdot+ the wheels' lateral velocities (
 With D = A M^-1 A^T (the wheels' Delassus matrix, symmetric positive definite) and b = A qdot* + h Adot qdot
 (qdot* = qdot + h M^-1 (Q - B) the free velocity; the second term carries each wheel's lateral velocity into
 its link's frame a substep on, so that a gripping wheel accelerates as eq. 27's A qddot = -Adot qdot says),
-w = b + D p: a box-constrained linear complementarity problem. D is positive definite, so its solution is unique (a
-strictly convex quadratic program; its primal: qdot+ minimises 1/2 (v - qdot*)^T M (v - qdot*) + sum_k mu m_k g h
-|A_k v + c_k|, c = h Adot qdot). It is solved by active sets, exactly to rounding: from the last substep's sliding wheels, the
-gripping wheels are held at w_k = 0 and the sliding ones at their friction; a wheel that needs more than its grip
-slides, a sliding wheel whose velocity runs with its friction grips again (one solve when nothing changes, the
-common case). Three formulations of that solve, equal to rounding (tested):
+w = b + D p: a box-constrained linear complementarity problem. D is positive definite, so its solution is
+unique (a strictly convex quadratic program; its primal: qdot+ minimises 1/2 (v - qdot*)^T M (v - qdot*) +
+sum_k mu m_k g h |A_k v + c_k|, c = h Adot qdot). It is solved by active sets, exactly to rounding: from the
+last substep's sliding wheels, the gripping wheels are held at w_k = 0 and the sliding ones at their friction;
+a wheel that needs more than its grip slides, a sliding wheel whose velocity runs with its friction grips again
+(one solve when nothing changes, the common case). Three formulations of that solve, equal to rounding (tested),
+each compiled in its own kernel (``ADVANCE_ROWS``), so that a first step compiles only the one it uses:
 
 - :func:`_recursive_solve` (the default, O(n) per iteration): dynamic programming along the chain from the tail,
   as the articulated-body algorithm does for M^-1; each link's angular rate is an affine function of the joint
   before it, fixed by its wheel if it grips, minimising if it slides;
 - :func:`_null_space_solve` (with rotors, whose inertia couples neighbouring joints; O(n m^2), m = 2 + the sliding
   wheels): the same minimisation over an explicit basis of the gripping wheels' null space;
-- :func:`_delassus_solve` (the fallback of both; O(n^3)): the gripping wheels' block of D by Cholesky, and
-  projected Gauss-Seidel to a residual of ``PGS_TOLERANCE`` where active sets do not settle.
+- :func:`_delassus_solve` (O(n^3)): the gripping wheels' block of D by Cholesky, and projected Gauss-Seidel to a
+  residual of ``PGS_TOLERANCE`` where active sets do not settle; where the other two fail, their callers step
+  the snake again with it.
 
 As mu grows every wheel grips and the step becomes a velocity projection onto the no-slip constraint:
 its trajectories converge to eq. 27's as h -> 0 (tested against the Kane sweep). Friction is implicit,
@@ -66,6 +68,12 @@ PGS_MAX_SWEEPS = 5000  # projected Gauss-Seidel sweeps at most; beyond them the 
 # m/s: a wheel slides when its lateral velocity at a substep's end exceeds this (a gripping wheel's is zero to
 # the solver's tolerance, ~1e-12 m/s; one that has just broken away and moves slower grips at its limit)
 SLIDE_SPEED = 1e-6
+
+
+def solve_method(rotor) -> int:
+    """The fastest friction solve (``advance``'s ``method``) for a rotor inertia matrix: the O(n) recursion
+    without rotors, the null-space solve with them (their inertia couples neighbouring joints)."""
+    return 1 if np.any(np.asarray(rotor) != 0.0) else 0
 
 
 def inertia_constants(mass, lever):
@@ -133,128 +141,228 @@ def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, join
         out[k] = T - c_joint[k] * phidot[k]
 
 
-@njit(cache=True, nogil=True)
 def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max,
             joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, impulse, stats, sliding_substeps, lateral,
-            method=0):
-    """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held.
+            method=None) -> bool:
+    """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held, for one snake.
 
     q, qdot ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are
     updated in place. ``stats`` (5,) gets += (work of every load but friction (J), friction's work (J), the
-    largest count of active-set iterations (or PGS sweeps), substeps that fell back to the Delassus solve, the
-    motors' energy (J): sum_k |A_k phidot_k| h with A_k the torque the motor delivers); ``sliding_substeps`` (n,)
-    counts per wheel the substeps it slid (|w_k| > SLIDE_SPEED); ``lateral`` (n,) gets the wheels' slip
-    velocities w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg); grip: mu m_k g
-    (N, (n,)); rotor: (n+2, n+2) rotor inertia matrix; mass: m_k (kg, (n,)). ``method``: the friction solve, 0 the
-    fastest that applies (:func:`_recursive_solve`, :func:`_null_space_solve` with rotors), 1 the null-space solve,
-    2 the Delassus solve (each falls back to the Delassus solve; the tests compare the three). Returns False (state left NaN) if M lost definiteness or the solver did not
-    converge."""
-    n = q.shape[0] - 2
-    N = n + 2
-    half = np.empty(n)  # m: h_k, from the lever arms (c[k, 0] = h_0, c[k, k] = h_k)
+    largest count of active-set iterations (or PGS sweeps), substeps solved by the Delassus solve, the motors'
+    energy (J): sum_k |A_k phidot_k| h with A_k the torque the motor delivers); ``sliding_substeps`` (n,) counts
+    per wheel the substeps it slid (|w_k| > SLIDE_SPEED); ``lateral`` (n,) gets the wheels' slip velocities
+    w = b + D p (m/s, the module doc's) of the last substep. total_mass: sum_k m_k (kg); grip: mu m_k g (N, (n,));
+    rotor: (n+2, n+2) rotor inertia matrix; mass: m_k (kg, (n,)). ``method``: the friction solve, an index into
+    ``ADVANCE_ROWS`` (0 the O(n) recursion, no rotors; 1 the null-space solve; 2 the Delassus solve), by default
+    :func:`solve_method`'s. Returns False (state left NaN) if the solve failed: M (or S^T M S) lost definiteness,
+    or the active sets (and, in the Delassus solve, Gauss-Seidel) did not settle. The callers then retry with the
+    Delassus solve."""
+    kernel = ADVANCE_ROWS[solve_method(rotor) if method is None else method]
+    ok = kernel(q[None], qdot[None], np.ascontiguousarray(command, dtype=np.float64)[None], G, g, total_mass, inertia,
+                lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor,
+                mass, np.array([h], dtype=np.float64), np.array([substeps], dtype=np.int64), np.zeros(1, np.int64),
+                impulse[None], stats[None], sliding_substeps[None], lateral[None], np.zeros((1, 2)))
+    return bool(ok[0])
+
+
+@njit(cache=True, nogil=True)
+def _half_lengths(lever):
+    """h_k (m, (n,)) from the lever arms (c[k, 0] = h_0, c[k, k] = h_k; :func:`.lagrange.lever_arms`)."""
+    n = lever.shape[0]
+    half = np.empty(n)
     half[0] = lever[1, 0] if n > 1 else 0.0
     for k in range(1, n):
         half[k] = lever[k, k]
-    rotor_on = False
-    for a in range(N):
-        for c in range(N):
-            if rotor[a, c] != 0.0:
-                rotor_on = True
-    cos = np.empty(n)
-    sin = np.empty(n)
-    state = np.empty(n, np.int64)  # 0: grips; +1 / -1: slides with p at +bound / -bound
-    for k in range(n):  # from the warm start (the last substep's impulses)
+    return half
+
+
+@njit(cache=True, nogil=True)
+def _warm_state(impulse, grip, h):
+    """Each wheel's state from the warm start (the last substep's impulses): 0 grips; +1 / -1 slides with p at
+    +bound / -bound."""
+    n = impulse.shape[0]
+    state = np.empty(n, np.int64)
+    for k in range(n):
         bound = grip[k] * h
         state[k] = 1 if impulse[k] >= bound * (1.0 - 1e-12) else (-1 if impulse[k] <= -bound * (1.0 - 1e-12) else 0)
-    T = np.empty(n - 1)
-    A = np.empty(n - 1)  # the motors' torques (N m)
-    phi = np.empty(n - 1)
-    phidot = np.empty(n - 1)
-    bounds = np.empty(n)
-    V = np.empty((n, 2))  # m/s: every CM's velocity at the substep's start, and at its end
-    V_new = np.empty((n, 2))
-    acc = np.empty((n, 2))  # m/s^2: every CM's centripetal acceleration, -sum_j c_kj thetadot_j^2 e_j
-    E = np.empty((n, 2))  # N: rolling resistance less m_k acc_k, the links' share of h (Q - B)
-    torque = np.empty(n)  # N m: the joints' torques on each link, T_{k-1} - T_k
-    cterm = np.empty(n)  # m/s: h Adot qdot (module doc)
+    return state
+
+
+@njit(cache=True, nogil=True)
+def _substep_loads(q, qdot, command, grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
+                   inv_room, mass, h, half, cos, sin, phi, phidot, T, A, torque, bounds, V, acc, E, cterm):
+    """A substep's loads, link by link, into the arrays after ``half``: the joints' torques T (N m; the motors'
+    share A) and each link's net joint torque, the wheels' impulse bounds mu m_k g h (N s), every CM's velocity
+    V and centripetal acceleration (:func:`_link_velocities`, :func:`_centripetal`), E_k = rolling resistance
+    less m_k acc_k (N, the link's share of Q - B) and cterm = h Adot qdot (m/s)."""
+    n = q.shape[0] - 2
+    for k in range(n):
+        cos[k] = math.cos(q[k])
+        sin[k] = math.sin(q[k])
+    for k in range(n - 1):
+        phi[k] = q[k + 1] - q[k]
+        phidot[k] = qdot[k + 1] - qdot[k]
+    joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
+                  inv_room, T, A)
+    for k in range(n):
+        torque[k] = (T[k - 1] if k > 0 else 0.0) - (T[k] if k < n - 1 else 0.0)
+        bounds[k] = grip[k] * h
+    _link_velocities(qdot, cos, sin, half, V)
+    _centripetal(qdot, cos, sin, half, acc)
+    for k in range(n):
+        speed = cos[k] * V[k, 0] + sin[k] * V[k, 1]  # V_k = e_k . rdot_k (m/s), the CM's speed along its link
+        roll = -c_wheel[k] * speed  # rolling resistance -c_w V_k e_k at CM_k (N)
+        E[k, 0] = roll * cos[k] - mass[k] * acc[k, 0]
+        E[k, 1] = roll * sin[k] - mass[k] * acc[k, 1]
+        # + h Adot qdot: the wheel's lateral velocity a substep on, in the link's turned frame (eq. 27's
+        # -Adot qdot; without it a gripping wheel's acceleration would miss it by O(1)); acc_k's lateral
+        # part is -(Adot qdot)'s centripetal share
+        cterm[k] = h * (-qdot[k] * speed + (-sin[k] * acc[k, 0] + cos[k] * acc[k, 1]))
+
+
+@njit(cache=True, nogil=True)
+def _substep_end(q, qdot, v_new, V, V_new, T, A, phidot, cos, sin, c_wheel, impulse, lateral, h, iterations, stats,
+                 sliding_substeps):
+    """The end of a substep whose solve gave v_new (V_new): the work counters of ``stats`` (the trapezoid terms of
+    the module doc), the sliding wheels' count, and (q, qdot) moved on (semi-implicit Euler)."""
+    n = q.shape[0] - 2
+    N = n + 2
+    stats[2] = max(stats[2], iterations)
+    # the trapezoid work terms (module doc) as the loads' power: the joint torques on the joint rates, the
+    # rolling resistance on the CMs' velocities, friction on the wheels' lateral velocities
+    work = 0.0
+    for k in range(n - 1):
+        work += T[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])
+    friction = 0.0
+    motor_energy = 0.0  # |A_k phidot_k| by the trapezoid of the joint rates, as the work
+    for k in range(n):
+        speed = cos[k] * V[k, 0] + sin[k] * V[k, 1]
+        roll = -c_wheel[k] * speed
+        work += roll * 0.5 * (speed + cos[k] * V_new[k, 0] + sin[k] * V_new[k, 1])
+        wk_old = -sin[k] * V[k, 0] + cos[k] * V[k, 1]
+        wk_new = -sin[k] * V_new[k, 0] + cos[k] * V_new[k, 1]
+        friction += impulse[k] * 0.5 * (wk_old + wk_new)
+        if abs(lateral[k]) > SLIDE_SPEED:
+            sliding_substeps[k] += 1
+    for k in range(n - 1):
+        motor_energy += abs(A[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])) * h
+    for a in range(N):
+        qdot[a] = v_new[a]
+        q[a] += h * v_new[a]
+    stats[0] += h * work
+    stats[1] += friction
+    stats[4] += motor_energy
+
+
+@njit(cache=True, nogil=True)
+def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
+                 inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows, impulse,
+                 stats, sliding_substeps, lateral, kinetic):
+    """:func:`advance` by the O(n) recursive solve (chains without rotors), for the rows ``rows`` of a batch: q,
+    qdot (B, n+2), commands (B, n-1), impulse, sliding_substeps and lateral (B, n) and stats (B, 5) in place, h and
+    substeps (B,) per row, the rest as :func:`advance`; the kinetic energy before and after each step into ``kinetic`` (B, 2) (J).
+    Returns ok (B,) (False: that row's solve failed and it is NaN)."""
+    B, n = q.shape[0], q.shape[1] - 2
+    N = n + 2
+    half = _half_lengths(lever)
+    cos, sin, bounds, torque, cterm = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     v_new = np.empty(N)
-    Sv = np.empty((N + 1, N))  # the null-space solve's basis S (rows) and particular solution (row m), and the
-    SV = np.empty((N + 1, n, 2))  # CM velocities of each; its reduced mass matrix S^T M S, factor, right side
-    H = np.empty((N, N))
-    Lh = np.empty((N, N))
-    rhs = np.empty(N)
-    unit = np.empty(N)
-    Z = np.empty((n, 2))
-    z = np.empty(n)
-    dv = np.empty(N)
-    Ak = np.empty((n, 2, 2))  # the recursive solve's quadratics of the links beyond each joint, and thetadot_k's
-    bk = np.empty((n, 2))  # affine dependence on the joint before it
-    alpha = np.empty((n, 2))
-    beta = np.empty(n)
-    for _ in range(substeps):
-        for k in range(n):
-            cos[k] = math.cos(q[k])
-            sin[k] = math.sin(q[k])
-        for k in range(n - 1):
-            phi[k] = q[k + 1] - q[k]
-            phidot[k] = qdot[k + 1] - qdot[k]
-        joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
-                      inv_room, T, A)
-        for k in range(n):
-            torque[k] = (T[k - 1] if k > 0 else 0.0) - (T[k] if k < n - 1 else 0.0)
-            bounds[k] = grip[k] * h
-        _link_velocities(qdot, cos, sin, half, V)
-        _centripetal(qdot, cos, sin, half, acc)
-        for k in range(n):
-            speed = cos[k] * V[k, 0] + sin[k] * V[k, 1]  # V_k = e_k . rdot_k (m/s), the CM's speed along its link
-            roll = -c_wheel[k] * speed  # rolling resistance -c_w V_k e_k at CM_k (N)
-            E[k, 0] = roll * cos[k] - mass[k] * acc[k, 0]
-            E[k, 1] = roll * sin[k] - mass[k] * acc[k, 1]
-            # + h Adot qdot: the wheel's lateral velocity a substep on, in the link's turned frame (eq. 27's
-            # -Adot qdot; without it a gripping wheel's acceleration would miss it by O(1)); acc_k's lateral
-            # part is -(Adot qdot)'s centripetal share
-            cterm[k] = h * (-qdot[k] * speed + (-sin[k] * acc[k, 0] + cos[k] * acc[k, 1]))
-        iterations = -1
-        if method == 0 and not rotor_on:
-            iterations = _recursive_solve(qdot, cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds, h,
-                                          state, impulse, v_new, V_new, lateral, Ak, bk, alpha, beta, Z)
-        elif method <= 1:
-            iterations = _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E, torque, cterm,
-                                           bounds, h, state, impulse, v_new, V_new, lateral, Sv, SV, H, Lh, rhs, unit, Z,
-                                           z, dv)
-        if iterations < 0:
-            iterations = _delassus_solve(q, qdot, cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor, T, h,
-                                         bounds, state, impulse, v_new, lateral)
+    phi, phidot, T, A = np.empty(n - 1), np.empty(n - 1), np.empty(n - 1), np.empty(n - 1)
+    V, V_new, acc, E = np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2))
+    Ak, bk, alpha, beta, Zp = np.empty((n, 2, 2)), np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty((n, 2))
+    ok = np.ones(B, np.bool_)
+    for b in rows:
+        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
+        state = _warm_state(impulse[b], grip, h[b])
+        for _ in range(substeps[b]):
+            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit,
+                           k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
+                           acc, E, cterm)
+            iterations = _recursive_solve(qdot[b], cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds,
+                                          h[b], state, impulse[b], v_new, V_new, lateral[b], Ak, bk, alpha, beta, Zp)
             if iterations < 0:
-                return _fail(q, qdot)
-            _link_velocities(v_new, cos, sin, half, V_new)
-            stats[3] += 1
-        stats[2] = max(stats[2], iterations)
-        # the trapezoid work terms (module doc) as the loads' power: the joint torques on the joint rates, the
-        # rolling resistance on the CMs' velocities, friction on the wheels' lateral velocities
-        work = 0.0
-        for k in range(n - 1):
-            work += T[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])
-        friction = 0.0
-        motor_energy = 0.0  # |A_k phidot_k| by the trapezoid of the joint rates, as the work
-        for k in range(n):
-            speed = cos[k] * V[k, 0] + sin[k] * V[k, 1]
-            roll = -c_wheel[k] * speed
-            work += roll * 0.5 * (speed + cos[k] * V_new[k, 0] + sin[k] * V_new[k, 1])
-            wk_old = -sin[k] * V[k, 0] + cos[k] * V[k, 1]
-            wk_new = -sin[k] * V_new[k, 0] + cos[k] * V_new[k, 1]
-            friction += impulse[k] * 0.5 * (wk_old + wk_new)
-            if abs(lateral[k]) > SLIDE_SPEED:
-                sliding_substeps[k] += 1
-        for k in range(n - 1):
-            motor_energy += abs(A[k] * 0.5 * (phidot[k] + v_new[k + 1] - v_new[k])) * h
-        for a in range(N):
-            qdot[a] = v_new[a]
-            q[a] += h * v_new[a]
-        stats[0] += h * work
-        stats[1] += friction
-        stats[4] += motor_energy
-    return True
+                ok[b] = _fail(q[b], qdot[b])
+                break
+            _substep_end(q[b], qdot[b], v_new, V, V_new, T, A, phidot, cos, sin, c_wheel, impulse[b], lateral[b], h[b],
+                         iterations, stats[b], sliding_substeps[b])
+        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor) if ok[b] else math.nan
+    return ok
+
+
+@njit(cache=True, nogil=True)
+def advance_rows_null_space(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
+                            inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows,
+                            impulse, stats, sliding_substeps, lateral, kinetic):
+    """:func:`advance` by the null-space solve (any rotors), for the rows ``rows`` of a batch: q, qdot (B, n+2),
+    commands (B, n-1), impulse, sliding_substeps and lateral (B, n) and stats (B, 5) in place, h and substeps (B,)
+    per row, the rest as :func:`advance`; the kinetic energy before and after each step into ``kinetic`` (B, 2) (J).
+    Returns ok (B,) (False: that row's solve failed and it is NaN)."""
+    B, n = q.shape[0], q.shape[1] - 2
+    N = n + 2
+    half = _half_lengths(lever)
+    cos, sin, bounds, torque, cterm = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    v_new = np.empty(N)
+    phi, phidot, T, A = np.empty(n - 1), np.empty(n - 1), np.empty(n - 1), np.empty(n - 1)
+    V, V_new, acc, E = np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2))
+    Sv, SV = np.empty((N + 1, N)), np.empty((N + 1, n, 2))  # the basis S (rows) and v_p (row m), and their CMs' V
+    H, Lh, rhs, unit, dv = np.empty((N, N)), np.empty((N, N)), np.empty(N), np.empty(N), np.empty(N)
+    Z, z = np.empty((n, 2)), np.empty(n)
+    rotor_on = np.any(rotor != 0.0)
+    ok = np.ones(B, np.bool_)
+    for b in rows:
+        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
+        state = _warm_state(impulse[b], grip, h[b])
+        for _ in range(substeps[b]):
+            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit,
+                           k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
+                           acc, E, cterm)
+            iterations = _null_space_solve(qdot[b], cos, sin, half, mass, inertia, rotor, rotor_on, V, E, torque,
+                                           cterm, bounds, h[b], state, impulse[b], v_new, V_new, lateral[b], Sv, SV,
+                                           H, Lh, rhs, unit, Z, z, dv)
+            if iterations < 0:
+                ok[b] = _fail(q[b], qdot[b])
+                break
+            _substep_end(q[b], qdot[b], v_new, V, V_new, T, A, phidot, cos, sin, c_wheel, impulse[b], lateral[b], h[b],
+                         iterations, stats[b], sliding_substeps[b])
+        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor) if ok[b] else math.nan
+    return ok
+
+
+@njit(cache=True, nogil=True)
+def advance_rows_delassus(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
+                          inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows,
+                          impulse, stats, sliding_substeps, lateral, kinetic):
+    """:func:`advance` by the Delassus solve (the fallback), for the rows ``rows`` of a batch: q, qdot (B, n+2),
+    commands (B, n-1), impulse, sliding_substeps and lateral (B, n) and stats (B, 5) in place, h and substeps (B,)
+    per row, the rest as :func:`advance`; the kinetic energy before and after each step into ``kinetic`` (B, 2) (J).
+    Returns ok (B,) (False: that row's solve failed and it is NaN)."""
+    B, n = q.shape[0], q.shape[1] - 2
+    N = n + 2
+    half = _half_lengths(lever)
+    cos, sin, bounds, torque, cterm = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    v_new = np.empty(N)
+    phi, phidot, T, A = np.empty(n - 1), np.empty(n - 1), np.empty(n - 1), np.empty(n - 1)
+    V, V_new, acc, E = np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2))
+    ok = np.ones(B, np.bool_)
+    for b in rows:
+        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
+        state = _warm_state(impulse[b], grip, h[b])
+        for _ in range(substeps[b]):
+            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit,
+                           k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
+                           acc, E, cterm)
+            iterations = _delassus_solve(q[b], qdot[b], cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor,
+                                         T, h[b], bounds, state, impulse[b], v_new, lateral[b])
+            if iterations >= 0:
+                _link_velocities(v_new, cos, sin, half, V_new)
+                stats[b, 3] += 1
+            if iterations < 0:
+                ok[b] = _fail(q[b], qdot[b])
+                break
+            _substep_end(q[b], qdot[b], v_new, V, V_new, T, A, phidot, cos, sin, c_wheel, impulse[b], lateral[b], h[b],
+                         iterations, stats[b], sliding_substeps[b])
+        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor) if ok[b] else math.nan
+    return ok
 
 
 @njit(cache=True, nogil=True)
@@ -370,7 +478,8 @@ def _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E
             for j in range(i + 1):
                 s = 0.0
                 for k in range(n):
-                    s += mass[k] * (SV[i, k, 0] * SV[j, k, 0] + SV[i, k, 1] * SV[j, k, 1]) + inertia[k] * Sv[i, k] * Sv[j, k]
+                    s += (mass[k] * (SV[i, k, 0] * SV[j, k, 0] + SV[i, k, 1] * SV[j, k, 1])
+                          + inertia[k] * Sv[i, k] * Sv[j, k])
                 if rotor_on:
                     for a in range(n):
                         for c in range(n):
@@ -819,19 +928,4 @@ def kinetic_energy(q, qdot, lever, mass, inertia, rotor):
     return K
 
 
-@njit(cache=True, nogil=True)
-def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load,
-                 t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows, impulse, stats, sliding_substeps,
-                 lateral, kinetic):
-    """:func:`advance` of the rows ``rows`` of a batch (q, qdot (B, n+2), commands (B, n-1), impulse and
-    sliding_substeps and lateral (B, n), stats (B, 5), all in place; h and substeps (B,) per row) and the kinetic energy
-    before and after each step into ``kinetic`` (B, 2) (J). Returns ok (B,) (False: that row is NaN)."""
-    ok = np.ones(q.shape[0], np.bool_)
-    for b in rows:
-        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
-        ok[b] = advance(q[b], qdot[b], commands[b], G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
-                        inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h[b], substeps[b],
-                        impulse[b],
-                        stats[b], sliding_substeps[b], lateral[b])
-        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor) if ok[b] else math.nan
-    return ok
+ADVANCE_ROWS = (advance_rows, advance_rows_null_space, advance_rows_delassus)  # by ``advance``'s method

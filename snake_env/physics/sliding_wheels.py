@@ -61,6 +61,7 @@ class SlidingWheelPhysics:
         wheels = sliding_wheels(config)
         self.model = wheels.model
         self.constants = wheels.compiled_constants()
+        self.method = sliding_step.solve_method(wheels.rotor)  # the friction solve (sliding_step.advance)
         self.grip = config.grip()
         self.wheel_load = config.wheel_load()
         self.draws: dict[str, np.ndarray] = {}
@@ -118,8 +119,16 @@ class SlidingWheelPhysics:
         commands = np.ascontiguousarray(torques, dtype=np.float64)
         for level in range(params.max_refinements + 1):
             h = dt / substeps
-            ok = sliding_step.advance_rows(q, self.qdot, commands, *self.constants, h, substeps, rows, self.impulse,
-                                           stats, slid, self.lateral, kinetic)
+            ok = sliding_step.ADVANCE_ROWS[self.method](q, self.qdot, commands, *self.constants, h, substeps, rows,
+                                                        self.impulse, stats, slid, self.lateral, kinetic)
+            unsettled = rows[~ok[rows]]
+            if unsettled.size:  # the fast friction solve did not settle: those rows again by the Delassus solve
+                q[unsettled], self.qdot[unsettled] = q0[unsettled], qdot0[unsettled]
+                self.impulse[unsettled], self.lateral[unsettled] = impulse0[unsettled], lateral0[unsettled]
+                stats[unsettled], slid[unsettled] = 0.0, 0.0
+                ok[unsettled] = sliding_step.advance_rows_delassus(q, self.qdot, commands, *self.constants, h, substeps,
+                                                                   unsettled, self.impulse, stats, slid, self.lateral,
+                                                                   kinetic)[unsettled]
             failing = rows[_verdicts(q, self.qdot, rows, ok, h, stats, kinetic, code, residual,
                                      params.energy_tolerance, params.energy_floor)]
             if failing.size == 0:

@@ -122,7 +122,7 @@ def test_coulomb_law_at_every_wheel(start):
         # the lateral velocities of the last substep, from one more substep's kernel call on a copy
         qq, qd = y[:N + 2].copy(), y[N + 2:2 * N + 4].copy()
         p = impulse.copy()
-        sliding_step.advance(qq, qd, COMMAND, *constants, h, 1, p, np.zeros(5), np.zeros(N), lateral)
+        sliding_step.advance(qq, qd, COMMAND, *constants, h, 1, p, np.zeros(5), np.zeros(N), lateral, 0)
         assert np.all(np.abs(p) <= grip * h * (1 + 1e-12))
         sliding = np.abs(lateral) > sliding_step.SLIDE_SPEED
         slid_any |= bool(np.any(sliding))
@@ -186,9 +186,9 @@ def test_active_set_and_gauss_seidel_find_the_same_unique_solution():
 
 @pytest.mark.parametrize("n, rotor", [(2, 0.0), (3, 0.0), (5, 0.0), (12, 0.004), (30, 0.0)])
 def test_the_three_friction_solves_agree(n, rotor):
-    """The O(n) recursive solve, the null-space solve and the Delassus-matrix solve are three formulations of one
-    strictly convex problem: on random states, torques and warm starts (wheels gripping and sliding) they give the
-    same velocities and impulses to rounding, and each obeys Coulomb's law."""
+    """The O(n) recursive solve (no rotors), the null-space solve and the Delassus-matrix solve are three
+    formulations of one strictly convex problem: on random states, torques and warm starts (wheels gripping and
+    sliding) they give the same velocities and impulses to rounding, and each obeys Coulomb's law."""
     model = SnakeModel(n, mass=1.0, length=0.2, inertia=0.005, joint_damping=0.01, wheel_damping=0.1)
     wheels = SlidingWheels(model, 0.8, rotor_inertia=np.full(n - 1, rotor) if rotor else None, **SERVO)
     constants = wheels.compiled_constants()
@@ -201,13 +201,13 @@ def test_the_three_friction_solves_agree(n, rotor):
         command = rng.uniform(-1, 1, n - 1)
         warm = rng.uniform(-1, 1, n) * grip * h * rng.integers(0, 2)
         results = []
-        for method in (0, 1, 2):
+        for method in ((1, 2) if rotor else (0, 1, 2)):  # the recursion takes no rotors (solve_method)
             qq, qd, p, lateral, stats = q.copy(), qdot.copy(), warm.copy(), np.zeros(n), np.zeros(5)
             assert sliding_step.advance(qq, qd, command, *constants, h, 1, p, stats, np.zeros(n), lateral, method)
-            assert stats[3] == (1 if method == 2 else 0)  # no solve fell back to the Delassus matrix
+            assert stats[3] == (1 if method == 2 else 0)  # substeps solved through the Delassus matrix
             results.append((qd, p, lateral))
-        reference = results[2]
-        for qd, p, lateral in results[:2]:
+        reference = results[-1]
+        for qd, p, lateral in results[:-1]:
             np.testing.assert_allclose(qd, reference[0], rtol=0, atol=1e-12 * (1 + np.max(np.abs(reference[0]))))
             np.testing.assert_allclose(p, reference[1], rtol=0, atol=1e-11 * np.max(grip * h))
             sliding = np.abs(lateral) > sliding_step.SLIDE_SPEED

@@ -11,6 +11,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import snake_env  # noqa: F401
+from snake_env.dynamics import sliding_step
 from snake_env.physics.config import PhysicsConfig
 from snake_env.physics.sliding_reference import SlidingSnake
 from tests.newest_ids import newest_id
@@ -111,6 +112,34 @@ def test_vector_env_rows_equal_single_envs():
             assert r == rewards[b]
             np.testing.assert_array_equal(i["wheel_slip"], info["wheel_slip"][b])
     vec.close()
+
+
+def test_rows_whose_fast_solve_fails_are_stepped_by_the_delassus_solve(monkeypatch):
+    """Where the O(n) friction solve does not settle (forced here on row 1), the step is taken again from the
+    row's pre-step state by the Delassus solve: that row then equals a run on the Delassus solve alone, bit for
+    bit, and the other rows are untouched."""
+    fast, dense = sliding_step.advance_rows, sliding_step.advance_rows_delassus
+
+    def failing_row_1(*args):
+        ok = fast(*args)
+        q, qdot, rows = args[0], args[1], args[22]
+        if 1 in rows:
+            q[1], qdot[1], ok[1] = np.nan, np.nan, False
+        return ok
+
+    runs = {}
+    for name, kernel in (("fast", fast), ("row 1 fails", failing_row_1), ("dense", dense)):
+        monkeypatch.setattr(sliding_step, "ADVANCE_ROWS", (kernel,) + sliding_step.ADVANCE_ROWS[1:])
+        vec = gym.make_vec(ENV, num_envs=3, vectorization_mode="vector_entry_point", wheel_model="sliding")
+        vec.reset(seed=4)
+        out = [vec.step(a) for a in np.stack([actions(5, 10, seed=b) for b in range(3)], axis=1)]
+        runs[name] = (np.stack([o[0] for o in out]), np.stack([o[4]["wheel_slip"] for o in out]))
+        vec.close()
+    assert np.all(np.isfinite(runs["row 1 fails"][0]))
+    for part in range(2):
+        np.testing.assert_array_equal(runs["row 1 fails"][part][:, 1], runs["dense"][part][:, 1])
+        np.testing.assert_array_equal(runs["row 1 fails"][part][:, [0, 2]], runs["fast"][part][:, [0, 2]])
+    assert np.any(runs["fast"][0][:, 1] != runs["dense"][0][:, 1])  # the two solves differ by rounding
 
 
 def test_set_state_restarts_with_gripping_wheels():
