@@ -15,6 +15,10 @@ from .kinematics import cm_positions, joint_angles, link_speeds
 from .validation import check_n_links, per_link_parameter, result_dtype, state_array
 from .wheel_reactions import lateral_forces
 
+# m/s^2: standard gravity; the wheels' normal load m_k g on the plane the snake moves on (their grip mu m_k g)
+# and the cost of transport's weight
+GRAVITY = 9.81
+
 # Paper Table II defaults.
 DEFAULT_MASS = 1.0  # kg
 DEFAULT_LENGTH = 0.2  # m

@@ -41,10 +41,9 @@ from .lagrange import (
     rotor_inertia_matrix,
     unit_vectors,
 )
-from .model import SnakeModel
+from .model import GRAVITY, SnakeModel
 from .motor import motor_torque_reference
 
-GRAVITY = 9.81  # m/s^2, as physics.config's wheel grip mu m_k g
 
 
 class SlidingWheels:

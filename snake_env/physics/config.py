@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from snake_env.dynamics import SnakeModel
+from snake_env.dynamics.model import GRAVITY  # m/s^2: the wheels' normal load m_k g, the cost of transport
 from snake_env.dynamics.validation import check_n_links
 
 from .actuators import ACTUATORS
@@ -67,7 +68,6 @@ MAX_REFINEMENTS_LIMIT = 12
 # RK4's stability interval is about 2.79 on the negative real axis and 2.83 on the
 # imaginary axis; sim_dt must keep the stiffest rate of the setting inside it with margin.
 RK4_STABLE_RATE_STEP = 2.5
-GRAVITY = 9.81  # m/s^2: the cost of transport and the wheels' normal load m_k g (the snake moves on a plane)
 # The robot of the newest ids (forward v3): servo-class joint motors and rubber wheels on a floor.
 DEFAULT_ACTUATOR = "servo"  # physics.actuators: 1 N m stall torque, 3.14 rad/s no-load speed (XH430-W350)
 # mu of a rubber wheel on a dry concrete floor: the kinetic coefficient 0.8 (static 1.0) of Serway & Beichner,
