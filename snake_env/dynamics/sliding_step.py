@@ -270,6 +270,7 @@ def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_jo
     phi, phidot, T, A = np.empty(n - 1), np.empty(n - 1), np.empty(n - 1), np.empty(n - 1)
     V, V_new, acc, E = np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2))
     Ak, bk, alpha, beta, Zp = np.empty((n, 2, 2)), np.empty((n, 2)), np.empty((n, 2)), np.empty(n), np.empty((n, 2))
+    K, Lk, f = np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
     ok = np.ones(B, np.bool_)
     for b in rows:
         kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
@@ -279,7 +280,8 @@ def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_jo
                            k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
                            acc, E, cterm)
             iterations = _recursive_solve(qdot[b], cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds,
-                                          h[b], state, impulse[b], v_new, V_new, lateral[b], Ak, bk, alpha, beta, Zp)
+                                          h[b], state, impulse[b], v_new, V_new, lateral[b], Ak, bk, alpha, beta, Zp,
+                                          K, Lk, f)
             if iterations < 0:
                 ok[b] = _fail(q[b], qdot[b])
                 break
@@ -512,7 +514,7 @@ def _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E
 
 @njit(cache=True, nogil=True)
 def _recursive_solve(qdot, cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds, h, state, impulse, v_new,
-                     V_new, lateral, Ak, bk, alpha, beta, Zp):
+                     V_new, lateral, Ak, bk, alpha, beta, Zp, K, Lk, f):
     """:func:`_null_space_solve`'s problem in O(n) per active-set iteration, for chains without rotors: the
     same minimisation, 1/2 v^T M v - v . (M qdot + h (Q - B) + A_s^T p_s) over the velocities whose gripping wheels
     do not move sideways, by dynamic programming along the chain (as the articulated-body algorithm does for
@@ -524,12 +526,8 @@ def _recursive_solve(qdot, cos, sin, half, mass, inertia, rotor, V, E, torque, c
     scalar), and either way thetadot_k = alpha_k . P_k + beta_k. At the head, (xdot, ydot, thetadot_0) minimise
     what is left (a 3 x 3 problem, 2 x 2 if wheel 0 grips); a forward pass gives qdot+. The impulses and the
     active-set rules are :func:`_null_space_solve`'s. Returns the iterations, or -1 (not settled within 2 n + 8,
-    or a head problem that is not positive definite)."""
+    or a head problem that is not positive definite). K, Lk (3, 3) and f (3,): the head problem's work arrays."""
     n = V.shape[0]
-    N = n + 2
-    K = np.empty((3, 3))
-    Lk = np.empty((3, 3))
-    f = np.empty(3)
     for iteration in range(2 * n + 8):
         for k in range(n):
             if state[k] != 0:
