@@ -24,7 +24,7 @@ sum_k mu m_k g h |A_k v + c_k|, c = h Adot qdot). It is solved by active sets, e
 last substep's sliding wheels, the gripping wheels are held at w_k = 0 and the sliding ones at their friction;
 a wheel that needs more than its grip slides, a sliding wheel whose velocity runs with its friction grips again
 (one solve when nothing changes, the common case). Three formulations of that solve, equal to rounding (tested),
-each compiled in its own kernel (``ADVANCE_ROWS``), so that a first step compiles only the one it uses:
+the O(n) one compiled in a kernel of its own (``ADVANCE_ROWS``), so that a first step compiles only it:
 
 - :func:`_recursive_solve` (the default, O(n) per iteration): dynamic programming along the chain from the tail,
   as the articulated-body algorithm does for M^-1; each link's angular rate is an affine function of the joint
@@ -56,6 +56,7 @@ trapezoid terms, and Delta K - work - friction_work -> 0 as h -> 0 (tested).
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 from numba import njit
@@ -292,13 +293,12 @@ def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_jo
 
 
 @njit(cache=True, nogil=True)
-def advance_rows_null_space(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
-                            inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows,
-                            impulse, stats, sliding_substeps, lateral, kinetic):
-    """:func:`advance` by the null-space solve (any rotors), for the rows ``rows`` of a batch: q, qdot (B, n+2),
-    commands (B, n-1), impulse, sliding_substeps and lateral (B, n) and stats (B, 5) in place, h and substeps (B,)
-    per row, the rest as :func:`advance`; the kinetic energy before and after each step into ``kinetic`` (B, 2) (J).
-    Returns ok (B,) (False: that row's solve failed and it is NaN)."""
+def advance_rows_exact(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
+                       inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows, impulse,
+                       stats, sliding_substeps, lateral, kinetic, delassus):
+    """:func:`advance_rows` by the null-space solve (any rotors) or, with ``delassus``, the Delassus solve (where
+    another solve failed). The two rare paths share this kernel; the common one has its own, so that a first step
+    compiles neither."""
     B, n = q.shape[0], q.shape[1] - 2
     N = n + 2
     half = _half_lengths(lever)
@@ -318,46 +318,16 @@ def advance_rows_null_space(q, qdot, commands, G, g, total_mass, inertia, lever,
             _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit,
                            k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
                            acc, E, cterm)
-            iterations = _null_space_solve(qdot[b], cos, sin, half, mass, inertia, rotor, rotor_on, V, E, torque,
-                                           cterm, bounds, h[b], state, impulse[b], v_new, V_new, lateral[b], Sv, SV,
-                                           H, Lh, rhs, unit, Z, z, dv)
-            if iterations < 0:
-                ok[b] = _fail(q[b], qdot[b])
-                break
-            _substep_end(q[b], qdot[b], v_new, V, V_new, T, A, phidot, cos, sin, c_wheel, impulse[b], lateral[b], h[b],
-                         iterations, stats[b], sliding_substeps[b])
-        kinetic[b, 1] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor) if ok[b] else math.nan
-    return ok
-
-
-@njit(cache=True, nogil=True)
-def advance_rows_delassus(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
-                          inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows,
-                          impulse, stats, sliding_substeps, lateral, kinetic):
-    """:func:`advance` by the Delassus solve (the fallback), for the rows ``rows`` of a batch: q, qdot (B, n+2),
-    commands (B, n-1), impulse, sliding_substeps and lateral (B, n) and stats (B, 5) in place, h and substeps (B,)
-    per row, the rest as :func:`advance`; the kinetic energy before and after each step into ``kinetic`` (B, 2) (J).
-    Returns ok (B,) (False: that row's solve failed and it is NaN)."""
-    B, n = q.shape[0], q.shape[1] - 2
-    N = n + 2
-    half = _half_lengths(lever)
-    cos, sin, bounds, torque, cterm = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    v_new = np.empty(N)
-    phi, phidot, T, A = np.empty(n - 1), np.empty(n - 1), np.empty(n - 1), np.empty(n - 1)
-    V, V_new, acc, E = np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2))
-    ok = np.ones(B, np.bool_)
-    for b in rows:
-        kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
-        state = _warm_state(impulse[b], grip, h[b])
-        for _ in range(substeps[b]):
-            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit,
-                           k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
-                           acc, E, cterm)
-            iterations = _delassus_solve(q[b], qdot[b], cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor,
-                                         T, h[b], bounds, state, impulse[b], v_new, lateral[b])
-            if iterations >= 0:
-                _link_velocities(v_new, cos, sin, half, V_new)
-                stats[b, 3] += 1
+            if delassus:
+                iterations = _delassus_solve(q[b], qdot[b], cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor,
+                                             T, h[b], bounds, state, impulse[b], v_new, lateral[b])
+                if iterations >= 0:
+                    _link_velocities(v_new, cos, sin, half, V_new)
+                    stats[b, 3] += 1
+            else:
+                iterations = _null_space_solve(qdot[b], cos, sin, half, mass, inertia, rotor, rotor_on, V, E, torque,
+                                               cterm, bounds, h[b], state, impulse[b], v_new, V_new, lateral[b], Sv,
+                                               SV, H, Lh, rhs, unit, Z, z, dv)
             if iterations < 0:
                 ok[b] = _fail(q[b], qdot[b])
                 break
@@ -926,4 +896,5 @@ def kinetic_energy(q, qdot, lever, mass, inertia, rotor):
     return K
 
 
-ADVANCE_ROWS = (advance_rows, advance_rows_null_space, advance_rows_delassus)  # by ``advance``'s method
+# the row kernels by ``advance``'s method: the O(n) recursion, the null-space solve, the Delassus solve
+ADVANCE_ROWS = (advance_rows, partial(advance_rows_exact, delassus=False), partial(advance_rows_exact, delassus=True))

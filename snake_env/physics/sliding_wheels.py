@@ -126,9 +126,9 @@ class SlidingWheelPhysics:
                 q[unsettled], self.qdot[unsettled] = q0[unsettled], qdot0[unsettled]
                 self.impulse[unsettled], self.lateral[unsettled] = impulse0[unsettled], lateral0[unsettled]
                 stats[unsettled], slid[unsettled] = 0.0, 0.0
-                ok[unsettled] = sliding_step.advance_rows_delassus(q, self.qdot, commands, *self.constants, h, substeps,
-                                                                   unsettled, self.impulse, stats, slid, self.lateral,
-                                                                   kinetic)[unsettled]
+                ok[unsettled] = sliding_step.ADVANCE_ROWS[2](q, self.qdot, commands, *self.constants, h, substeps,
+                                                             unsettled, self.impulse, stats, slid, self.lateral,
+                                                             kinetic)[unsettled]
             failing = rows[_verdicts(q, self.qdot, rows, ok, h, stats, kinetic, code, residual,
                                      params.energy_tolerance, params.energy_floor)]
             if failing.size == 0:

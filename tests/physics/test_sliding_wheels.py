@@ -118,7 +118,7 @@ def test_rows_whose_fast_solve_fails_are_stepped_by_the_delassus_solve(monkeypat
     """Where the O(n) friction solve does not settle (forced here on row 1), the step is taken again from the
     row's pre-step state by the Delassus solve: that row then equals a run on the Delassus solve alone, bit for
     bit, and the other rows are untouched."""
-    fast, dense = sliding_step.advance_rows, sliding_step.advance_rows_delassus
+    fast, dense = sliding_step.ADVANCE_ROWS[0], sliding_step.ADVANCE_ROWS[2]
 
     def failing_row_1(*args):
         ok = fast(*args)
