@@ -308,12 +308,12 @@ import json, time
 start = time.perf_counter()
 import gymnasium as gym
 import snake_env
-env = gym.make("{env_id}")
+env = gym.make("{env_id}", **{env_kwargs!r})
 env.reset(seed=0)
 env.action_space.seed(0)  # the same first actions every run (whether a first step refines moves the figure)
 env.step(env.action_space.sample())
 single = time.perf_counter() - start
-envs = gym.make_vec("{env_id}", num_envs=32, vectorization_mode="vector_entry_point")
+envs = gym.make_vec("{env_id}", num_envs=32, vectorization_mode="vector_entry_point", **{env_kwargs!r})
 envs.reset(seed=0)
 envs.action_space.seed(0)
 envs.step(envs.action_space.sample())
@@ -325,17 +325,18 @@ print(json.dumps({{"import_and_first_step_s": single, "plus_vector_first_step_s"
 """
 
 
-def startup_time(n_links: int, runs: int, cold: bool = True) -> dict:
+def startup_time(n_links: int, runs: int, cold: bool = True, env_kwargs: dict | None = None) -> dict:
     """Seconds from a fresh interpreter to the first env step (imports, numba
     cache loads, make, reset, step) and then a first 32-env vector step. With
     ``cold``, every run uses one new NUMBA_CACHE_DIR: the first run starts from an
     empty cache (a new install's cold start, ``cold_start_s``), the later ones are
     the "once caches exist" figure; without it the runs use the current cache. Each run ends when the
     background compile it started (``stepping.compile_in_background``) has finished too
-    (``all_kernels_s``), so the next run finds every kernel cached."""
+    (``all_kernels_s``), so the next run finds every kernel cached. ``env_kwargs``: the envs' settings (e.g. the
+    wheel model, whose kernels differ)."""
     import tempfile
 
-    code = STARTUP_CHILD.format(env_id=snake_id(n_links))
+    code = STARTUP_CHILD.format(env_id=snake_id(n_links), env_kwargs=dict(env_kwargs or {}))
     samples = []
     wall = []
     with tempfile.TemporaryDirectory(prefix="snake_bench_numba_") as cache:
@@ -347,6 +348,7 @@ def startup_time(n_links: int, runs: int, cold: bool = True) -> dict:
     warm = samples[1:] if len(samples) > 1 else samples
     return {
         "env": snake_id(n_links),
+        "env_kwargs": dict(env_kwargs or {}),
         "first_run": samples[0],
         "cold_start_s": samples[0]["plus_vector_first_step_s"] if cold else None,
         "import_and_first_step_s": min(s["import_and_first_step_s"] for s in warm),
