@@ -57,11 +57,11 @@ def _check_reach(env_id: str) -> None:
         raise ValueError(f"env must be a reach task id (snake_env/SnakeReach{{n}}-v1), got {env_id!r} (task {task!r})")
 
 
-def _previous_physics(env_id: str) -> bool:
-    """Whether the id has the previous version's physics (its gaits are the previous version's)."""
+def _versions_back(env_id: str) -> int:
+    """How many physics versions before the newest the id's physics is (its gaits are that version's)."""
     from snake_env.envs.core import env_config
 
-    return env_config(env_id)[1].previous_physics
+    return env_config(env_id)[1].versions_back
 
 
 def _vector_env(env_id: str, num_envs: int, **kwargs):
@@ -75,7 +75,7 @@ def measure_turn_gain(env_id: str, offsets=TURN_OFFSETS, starts: int = 3, steps:
     """(G in rad/s per rad, {gamma: mean yaw rate (rad/s)}): the gait steered by each fixed ``offsets``
     value from ``starts`` random starts, the yaw rate of theta_bar measured after ``settle`` steps."""
     n_links, max_torque, dt, include_position = env_geometry(env_id, {})
-    params, _ = gait_for_links(n_links, gaits, _previous_physics(env_id))
+    params, _ = gait_for_links(n_links, gaits, _versions_back(env_id))
     gamma = np.repeat(np.asarray(offsets, float), starts)
     env = _vector_env(env_id, len(gamma), terminate_on_success=False)
     try:
@@ -98,7 +98,7 @@ def success_rate(env_id: str, settings: dict, episodes: int, seed: int, gaits=No
     """(fraction of ``episodes`` goals reached, mean steps of the successes) by goal seeking with ``settings``;
     one episode per sub-env of a vector env reset with ``seed``."""
     n_links, max_torque, dt, include_position = env_geometry(env_id, {})
-    params, speed = gait_for_links(n_links, gaits, _previous_physics(env_id))
+    params, speed = gait_for_links(n_links, gaits, _versions_back(env_id))
     if speed is None:
         raise ValueError(f"the gait for n_links={n_links} has no search.mean_forward_velocity")
     env = _vector_env(env_id, episodes)

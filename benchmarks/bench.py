@@ -133,8 +133,8 @@ def run_sections(config: BenchConfig, sections, log=print) -> dict:
             config.memory_links, config.memory_num_envs, config.memory_steps))
     if "startup" in sections:
         attempt("startup", lambda: bench_sections.startup_time(5, config.startup_runs, config.startup_cold))
-        if config.startup_cold:  # the sliding wheels' kernels are others: their own cold start
-            attempt("startup_sliding", lambda: bench_sections.startup_time(5, 1, True, {"wheel_model": "sliding"}))
+        if config.startup_cold:  # the no-slip wheels' kernels are others than the default sliding ones: their own
+            attempt("startup_no_slip", lambda: bench_sections.startup_time(5, 1, True, {"wheel_model": "no_slip"}))
     return results
 
 

@@ -192,11 +192,12 @@ def table_rows(results: dict) -> list[tuple[str, str, str]]:
                         + (f", {_fmt(startup['first_run']['all_kernels_s'])} s until the background compile "
                            f"(refinement kernels) finished" if "all_kernels_s" in startup["first_run"] else "")
                         if startup.get("cold_start_s") is not None else "not measured")))
-    sliding = _get(results, "startup_sliding")
-    if sliding:
-        rows.append(("startup", f"{sliding['env']}, wheel_model='sliding', empty numba cache",
-                     f"{_fmt(sliding['first_run']['import_and_first_step_s'])} s to the first step, "
-                     f"{_fmt(sliding['cold_start_s'])} s with a first 32-env vector step"))
+    other = _get(results, "startup_no_slip")
+    if other:
+        settings = ", ".join(f"{name}={value!r}" for name, value in other["env_kwargs"].items())
+        rows.append(("startup", f"{other['env']}, {settings}, empty numba cache",
+                     f"{_fmt(other['first_run']['import_and_first_step_s'])} s to the first step, "
+                     f"{_fmt(other['cold_start_s'])} s with a first 32-env vector step"))
     return rows
 
 

@@ -126,8 +126,8 @@ def vector_env_speeds(n_links: int, num_envs_list, sample_time: float, rounds: i
 
 # --------------------------------------------------------------------------- wheel models
 def wheel_model_speeds(links, num_envs: int, sample_time: float, rounds: int) -> dict:
-    """The vector env's env-steps/s on the default no-slip wheels and on sliding wheels
-    (``wheel_model="sliding"``) at each n of ``links``, ``num_envs`` envs: what the sliding model costs."""
+    """The vector env's env-steps/s on the no-slip wheels (``wheel_model="no_slip"``, v3's) and on the default
+    sliding wheels at each n of ``links``, ``num_envs`` envs: what the sliding model costs."""
     results = {}
     for n_links in links:
         row = {}

@@ -15,10 +15,12 @@ tasks were born on that physics. The physics' v2 (forward and path v2,
 command and reach v1) fails an accurate fold at once instead of refining it
 (see :mod:`snake_env.physics.stepping`). The physics' v3 (forward and path
 v3, command and reach v2) is a robot a lab could build: servo motors and
-wheels with finite grip. The previous version of each shipped id stays
-registered as the same task with the previous physics pinned in its kwargs
-(:data:`~snake_env.physics.config.PREVIOUS_VERSION_PHYSICS`, as CartPole-v0
-differs from v1 by its registration), so runs and configs made on it keep
+wheels with finite grip under a traction limit. The physics' v4 (forward and
+path v4, command and reach v3) has wheels that slide beyond their grip and
+motors that brake with their back-EMF. The two versions before the newest of
+each shipped id stay registered as the same task with their physics pinned in
+the kwargs (:data:`~snake_env.physics.config.PHYSICS_HISTORY`, as CartPole-v0
+differs from v1 by its registration), so runs and configs made on them keep
 working. Older versions are not registered (gymnasium's error then names the
 newest): forward v0 is not reproduced by any setting, and v1 differs from v2
 only on steps that fold, which the default joint limit prevents.
@@ -26,7 +28,7 @@ only on steps that fold, which the default joint limit prevents.
 
 from __future__ import annotations
 
-from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS
+from snake_env.physics.config import PHYSICS_HISTORY
 from snake_env.tasks import TASKS, Task, task_class
 
 REGISTERED_N_LINKS = (3, 5, 8, 12, 20, 30)
@@ -38,14 +40,15 @@ VECTOR_ENTRY_POINT = "snake_env.envs.vector:SnakeVectorEnv"
 def task_ids(task: type[Task], n_links=REGISTERED_N_LINKS, previous: bool = False) -> dict[str, dict]:
     """The ids of one task class with their registration kwargs. A shipped task is named by its
     ``task=`` string (so a spec prints and pickles plainly), any other by its class. ``previous``:
-    also the ids of the version before, with the previous physics pinned (see the module doc)."""
+    also the ids of the versions before, each with its physics pinned (see the module doc)."""
     cls = task_class(task)
     if not cls.id_prefix:
         raise ValueError(f"{cls.__name__}.id_prefix must name the task's ids (e.g. 'SnakeMyTask'), got ''")
     name = cls.name if TASKS.get(cls.name) is cls else cls
     versions = [(cls.version, {})]
-    if previous and cls.version > 0:
-        versions.append((cls.version - 1, dict(PREVIOUS_VERSION_PHYSICS)))
+    if previous:
+        versions += [(cls.version - back, dict(physics)) for back, physics in enumerate(PHYSICS_HISTORY, start=1)
+                     if cls.version - back >= 0]
     ids = {}
     for version, physics in versions:
         ids[f"snake_env/{cls.id_prefix}-v{version}"] = {"task": name, **physics}
@@ -61,7 +64,7 @@ def registered_ids() -> dict[str, dict]:
 
 def register_task(task: type[Task], n_links=REGISTERED_N_LINKS, previous: bool = False) -> list[str]:
     """Register a task class's ids (see the module doc); ids already registered are kept.
-    ``previous``: also the previous version's ids (the shipped tasks). Returns the ids."""
+    ``previous``: also the earlier versions' ids (the shipped tasks). Returns the ids."""
     from gymnasium.envs.registration import register, registry
 
     cls = task_class(task)

@@ -44,17 +44,18 @@ def load_params(env_id: str, path=None) -> tuple[SerpenoidParams, dict]:
     return SerpenoidParams.from_dict(entry["params"]), dict(entry.get("env_kwargs") or {})
 
 
-def gait_for_links(n_links: int, path=None, previous_physics: bool = False) -> tuple[SerpenoidParams, float | None]:
+def gait_for_links(n_links: int, path=None, versions_back: int = 0) -> tuple[SerpenoidParams, float | None]:
     """(gait, its straight-line speed (m/s) or None) of the locomotion id ``snake_env/Snake{n}-v*``
-    with this n (newest version) in ``path``: the gait the task baselines steer. ``previous_physics``
-    (a config with the previous version's physics, ``PhysicsConfig.previous_physics``): the newest
-    gait of an older version, where the file has one, since a gait is searched for its physics."""
+    with this n (newest version) in ``path``: the gait the task baselines steer. ``versions_back``
+    (a config with an earlier version's physics, ``PhysicsConfig.versions_back``): the gait that many
+    versions before the newest in the file, or the oldest it has, since a gait is searched for its physics."""
     path = config_path(GAITS_FILE, path)
     gaits = load_gaits(path)
     pattern = re.compile(rf"^snake_env/Snake{n_links}-v(\d+)$")
     matches = sorted((int(m.group(1)), key) for key in gaits if (m := pattern.match(str(key))))
-    if previous_physics and len(matches) > 1:
-        matches = matches[:-1]
+    if versions_back > 0 and matches:  # the version that many before the file's newest, or the newest before it
+        target = matches[-1][0] - int(versions_back)
+        matches = [match for match in matches if match[0] <= target] or matches[:1]
     if not matches:
         raise ValueError(f"no serpenoid gait for n_links={n_links} in {path} (run: python -m "
                          f"snake_env.agents.search --env snake_env/Snake{n_links}-vN, or --env snake_env/Snake-vN "

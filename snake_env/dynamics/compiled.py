@@ -83,16 +83,19 @@ class KernelModel(NamedTuple):
     # each joint motor's reflected rotor inertia N^2 J_r (kg m^2), (n-1,): the rotor's kinetic energy
     # 1/2 N^2 J_r phidot_k^2 (MuJoCo's joint armature); empty (0,): massless rotors (the paper's model)
     rotor_inertia: np.ndarray = np.empty(0)
+    # 1.0: back-EMF braking past the current limit (.motor's module doc; the physics from v4); 0.0: the motor's
+    # braking capped at torque_limit (v3 and before)
+    back_emf_braking: float = 0.0
 
 
 def kernel_model(mass, half_length, inertia, joint_damping, wheel_damping, joint_limit=0.0, limit_stiffness=0.0,
                  limit_damping=0.0, stall_torque=math.inf, inverse_no_load_speed=0.0, torque_limit=math.inf,
-                 wheel_grip=None, rotor_inertia=None) -> tuple:
+                 wheel_grip=None, rotor_inertia=None, back_emf_braking=False) -> tuple:
     """The ``model`` argument of the kernels (see :class:`KernelModel`): its fields
     as a plain tuple, arrays as float64 C-contiguous (the given arrays themselves
     when they already are) and scalars as Python floats, so that every caller
     reuses one compiled (and cached) specialisation. The defaults: no joint limits, ideal torque sources,
-    unlimited grip, massless rotors."""
+    unlimited grip, massless rotors, braking capped at the current limit."""
     def array(a):
         return np.ascontiguousarray(a, dtype=np.float64)
 
@@ -100,7 +103,8 @@ def kernel_model(mass, half_length, inertia, joint_damping, wheel_damping, joint
                              array(wheel_damping), float(joint_limit), float(limit_stiffness), float(limit_damping),
                              float(stall_torque), float(inverse_no_load_speed), float(torque_limit),
                              array(np.empty(0) if wheel_grip is None else wheel_grip),
-                             array(np.empty(0) if rotor_inertia is None else rotor_inertia)))
+                             array(np.empty(0) if rotor_inertia is None else rotor_inertia),
+                             1.0 if back_emf_braking else 0.0))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -169,7 +173,7 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
     alone, so that the caller can add them at another scale (eq. 8 is linear in the torques).
     pm = sum_k |A_k phidot_k| (W): the motors' absolute power before any scale (scale >= 0 multiplies it)."""
     m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max = model[:11]
-    rotor = model[12]
+    rotor, braking = model[12], model[13]
     n = m.shape[0]
     inv_room = inverse_room(limit)
     motor = t_max < math.inf
@@ -238,7 +242,7 @@ def _kane_sweep(model, q, u, torques, dq, du, links, record, scale, split):
         # eq. 11: joint k acts +T on link k+1, -T on link k
         T = torques[k]
         if motor:  # the command clipped to the motor's torque-speed band and current limit
-            T = motor_torque(T, phidot, stall, inv_w0, t_max)
+            T = motor_torque(T, phidot, stall, inv_w0, t_max, braking)
         A = T
         pm += abs(A * phidot)
         T = scale * A
@@ -544,7 +548,7 @@ def rk4_step_batch(model, q, u, torques, dt, n_substeps, work):
 def _paper_model(m, h, inertia, c_joint, c_wheel):
     """The KernelModel tuple of the paper's model: no joint limits, ideal torque sources, unlimited grip,
     massless rotors."""
-    return (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf, np.empty(0), np.empty(0))
+    return (m, h, inertia, c_joint, c_wheel, 0.0, 0.0, 0.0, math.inf, 0.0, math.inf, np.empty(0), np.empty(0), 0.0)
 
 
 @njit(cache=True, nogil=True)
@@ -780,7 +784,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
     singular or NaN state gives inf/NaN (caught by the caller's finite check)
     instead of an exception, and keeps the loops free of exits.
     """
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip, rotor = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip, rotor, braking = model
     n = m.shape[0]
     motor = t_max < math.inf
     geared = rotor.shape[0] > 0
@@ -894,7 +898,7 @@ def rk4_stage_lanes(model, s, nl, stage, first, dt, estimate, inv_tol, v_ref):
                 # eq. 11: joint k acts +T on link k+1, -T on link k; barrier beyond |phi| > limit
                 T = s[o + _B_TQ + l]
                 if motor:  # the command clipped to the motor's torque-speed band and current limit
-                    T = motor_torque(T, phidot, stall, inv_w0, t_max)
+                    T = motor_torque(T, phidot, stall, inv_w0, t_max, braking)
                 # the traction scale: 1 without grip (bit for bit A); with grip 0 in the stage-1 sweep, then
                 # the substep's (read, not branched on, so that the lane loop stays one vectorised loop)
                 A = T

@@ -58,12 +58,14 @@ class SlidingWheels:
         joint_limit, limit_stiffness, limit_damping: the joint-limit barrier (rad, N m/rad,
             N m s/rad) as the env's kernels apply it; joint_limit 0 for none.
         rotor_inertia: (n-1,) reflected rotor inertias (kg m^2) or None.
+        back_emf_braking: a motor back-driven past its current limit brakes with its back-EMF's torque
+            (:mod:`.motor`; the env's physics from v4); False: braking capped at torque_limit.
     """
 
     def __init__(self, model: SnakeModel, friction: float, slip_speed: float = 1e-3,
                  stall_torque: float = math.inf, no_load_speed: float = math.inf, torque_limit: float = math.inf,
                  joint_limit: float = 0.0, limit_stiffness: float = 0.0, limit_damping: float = 0.0,
-                 rotor_inertia=None):
+                 rotor_inertia=None, back_emf_braking: bool = False):
         for name, value in (("friction", friction), ("slip_speed", slip_speed)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
@@ -75,6 +77,7 @@ class SlidingWheels:
         self.grip = friction * GRAVITY * m  # N, the most each wheel holds sideways
         self.slip_speed = float(slip_speed)
         self.motor = (float(stall_torque), float(no_load_speed), float(torque_limit))
+        self.back_emf_braking = bool(back_emf_braking)
         self.limit = (float(joint_limit), float(limit_stiffness), float(limit_damping))
         self.rotor = (np.zeros((self.n + 2, self.n + 2)) if rotor_inertia is None
                       else rotor_inertia_matrix(np.asarray(rotor_inertia, dtype=np.float64), self.n))
@@ -90,7 +93,7 @@ class SlidingWheels:
         stall, no_load, t_max = self.motor
         T = np.asarray(command, dtype=np.float64)
         if t_max < math.inf:
-            T = motor_torque_reference(T, phidot, stall, no_load, t_max)
+            T = motor_torque_reference(T, phidot, stall, no_load, t_max, self.back_emf_braking)
         limit, k_limit, c_limit = self.limit
         if limit > 0.0:  # as compiled.rk4_stage_lanes: a ramped, capped barrier beyond |phi| > limit
             excess = np.where(phi > limit, phi - limit, phi + limit)
@@ -201,7 +204,7 @@ class SlidingWheels:
                 G, g, float(np.sum(self.mass)), np.ascontiguousarray(self.inertia), np.ascontiguousarray(self.lever),
                 np.ascontiguousarray(self.grip), np.ascontiguousarray(c_joint, dtype=np.float64),
                 np.ascontiguousarray(c_wheel, dtype=np.float64), stall, 0.0 if math.isinf(no_load) else 1.0 / no_load,
-                t_max, limit, k_limit, c_limit, compiled.inverse_room(limit) if limit > 0.0 else 0.0,
+                t_max, 1.0 if self.back_emf_braking else 0.0, limit, k_limit, c_limit, compiled.inverse_room(limit) if limit > 0.0 else 0.0,
                 np.ascontiguousarray(self.rotor), np.ascontiguousarray(self.mass, dtype=np.float64))
         return self._constants
 

@@ -127,15 +127,15 @@ def _backward(L, x):
 
 
 @njit(cache=True, nogil=True)
-def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room,
-                  out, motor):
+def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, braking, joint_limit, k_lim, c_lim,
+                  inv_room, out, motor):
     """The joints' torques (N m, (n-1,)) into ``out``: the motor's for ``command`` (N m), less damping and the
     joint-limit barrier, as the env's kernels and :meth:`.sliding.SlidingWheels.joint_torques` give them; the
     motors' own share (after their band and current limit) into ``motor``."""
     for k in range(phi.shape[0]):
         T = command[k]
         if t_max < math.inf:
-            T = motor_torque(T, phidot[k], stall, inv_no_load, t_max)
+            T = motor_torque(T, phidot[k], stall, inv_no_load, t_max, braking)
         motor[k] = T
         if joint_limit > 0.0 and abs(phi[k]) > joint_limit:
             T -= barrier_torque(phi[k], phidot[k], joint_limit, k_lim, c_lim, inv_room)
@@ -143,8 +143,8 @@ def joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, join
 
 
 def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max,
-            joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, impulse, stats, sliding_substeps, lateral,
-            method=None) -> bool:
+            braking, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, impulse, stats, sliding_substeps,
+            lateral, method=None) -> bool:
     """``substeps`` substeps of h (s) of the module doc's scheme with ``command`` (n-1,) (N m) held, for one snake.
 
     q, qdot ((n+2,) each) and ``impulse`` (n,) (the last substep's p, N s; also the solver's warm start) are
@@ -160,9 +160,9 @@ def advance(q, qdot, command, G, g, total_mass, inertia, lever, grip, c_joint, c
     Delassus solve."""
     kernel = ADVANCE_ROWS[solve_method(rotor) if method is None else method]
     ok = kernel(q[None], qdot[None], np.ascontiguousarray(command, dtype=np.float64)[None], G, g, total_mass, inertia,
-                lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor,
-                mass, np.array([h], dtype=np.float64), np.array([substeps], dtype=np.int64), np.zeros(1, np.int64),
-                impulse[None], stats[None], sliding_substeps[None], lateral[None], np.zeros((1, 2)))
+                lever, grip, c_joint, c_wheel, stall, inv_no_load, t_max, braking, joint_limit, k_lim, c_lim, inv_room,
+                rotor, mass, np.array([h], dtype=np.float64), np.array([substeps], dtype=np.int64),
+                np.zeros(1, np.int64), impulse[None], stats[None], sliding_substeps[None], lateral[None], np.zeros((1, 2)))
     return bool(ok[0])
 
 
@@ -190,8 +190,8 @@ def _warm_state(impulse, grip, h):
 
 
 @njit(cache=True, nogil=True)
-def _substep_loads(q, qdot, command, grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
-                   inv_room, mass, h, half, cos, sin, phi, phidot, T, A, torque, bounds, V, acc, E, cterm):
+def _substep_loads(q, qdot, command, grip, c_joint, c_wheel, stall, inv_no_load, t_max, braking, joint_limit, k_lim,
+                   c_lim, inv_room, mass, h, half, cos, sin, phi, phidot, T, A, torque, bounds, V, acc, E, cterm):
     """A substep's loads, link by link, into the arrays after ``half``: the joints' torques T (N m; the motors'
     share A) and each link's net joint torque, the wheels' impulse bounds mu m_k g h (N s), every CM's velocity
     V and centripetal acceleration (:func:`_link_velocities`, :func:`_centripetal`), E_k = rolling resistance
@@ -203,7 +203,7 @@ def _substep_loads(q, qdot, command, grip, c_joint, c_wheel, stall, inv_no_load,
     for k in range(n - 1):
         phi[k] = q[k + 1] - q[k]
         phidot[k] = qdot[k + 1] - qdot[k]
-    joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, joint_limit, k_lim, c_lim,
+    joint_torques(command, phi, phidot, c_joint, stall, inv_no_load, t_max, braking, joint_limit, k_lim, c_lim,
                   inv_room, T, A)
     for k in range(n):
         torque[k] = (T[k - 1] if k > 0 else 0.0) - (T[k] if k < n - 1 else 0.0)
@@ -257,8 +257,8 @@ def _substep_end(q, qdot, v_new, V, V_new, T, A, phidot, cos, sin, c_wheel, impu
 
 @njit(cache=True, nogil=True)
 def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
-                 inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows, impulse,
-                 stats, sliding_substeps, lateral, kinetic):
+                 inv_no_load, t_max, braking, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows,
+                 impulse, stats, sliding_substeps, lateral, kinetic):
     """:func:`advance` by the O(n) recursive solve (chains without rotors), for the rows ``rows`` of a batch: q,
     qdot (B, n+2), commands (B, n-1), impulse, sliding_substeps and lateral (B, n) and stats (B, 5) in place, h and
     substeps (B,) per row, the rest as :func:`advance`; the kinetic energy before and after each step into ``kinetic`` (B, 2) (J).
@@ -277,9 +277,9 @@ def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_jo
         kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
         state = _warm_state(impulse[b], grip, h[b])
         for _ in range(substeps[b]):
-            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit,
-                           k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
-                           acc, E, cterm)
+            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, braking,
+                           joint_limit, k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque,
+                           bounds, V, acc, E, cterm)
             iterations = _recursive_solve(qdot[b], cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds,
                                           h[b], state, impulse[b], v_new, V_new, lateral[b], Ak, bk, alpha, beta, Zp,
                                           K, Lk, f)
@@ -294,8 +294,8 @@ def advance_rows(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_jo
 
 @njit(cache=True, nogil=True)
 def advance_rows_exact(q, qdot, commands, G, g, total_mass, inertia, lever, grip, c_joint, c_wheel, stall,
-                       inv_no_load, t_max, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows, impulse,
-                       stats, sliding_substeps, lateral, kinetic, delassus):
+                       inv_no_load, t_max, braking, joint_limit, k_lim, c_lim, inv_room, rotor, mass, h, substeps, rows,
+                       impulse, stats, sliding_substeps, lateral, kinetic, delassus):
     """:func:`advance_rows` by the null-space solve (any rotors) or, with ``delassus``, the Delassus solve (where
     another solve failed). The two rare paths share this kernel; the common one has its own, so that a first step
     compiles neither."""
@@ -315,9 +315,9 @@ def advance_rows_exact(q, qdot, commands, G, g, total_mass, inertia, lever, grip
         kinetic[b, 0] = kinetic_energy(q[b], qdot[b], lever, mass, inertia, rotor)
         state = _warm_state(impulse[b], grip, h[b])
         for _ in range(substeps[b]):
-            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, joint_limit,
-                           k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque, bounds, V,
-                           acc, E, cterm)
+            _substep_loads(q[b], qdot[b], commands[b], grip, c_joint, c_wheel, stall, inv_no_load, t_max, braking,
+                           joint_limit, k_lim, c_lim, inv_room, mass, h[b], half, cos, sin, phi, phidot, T, A, torque,
+                           bounds, V, acc, E, cterm)
             if delassus:
                 iterations = _delassus_solve(q[b], qdot[b], cos, sin, G, g, total_mass, inertia, lever, c_wheel, rotor,
                                              T, h[b], bounds, state, impulse[b], v_new, lateral[b])

@@ -50,7 +50,7 @@ def compile_lane_parts(model, n: int) -> None:
     ``compiled.rk4_stage_lanes``), in the order the parent's compile asks for them, which then loads
     what this process has cached by then (its compile is ~40 % stages; a race: a part the parent asks
     for first it compiles itself)."""
-    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip, rotor = model
+    m, h, inertia, c_joint, c_wheel, limit, k_limit, c_limit, stall, inv_w0, t_max, grip, rotor, braking = model
     s = np.zeros(compiled.lanes_scratch_size(n))
     compiled._traction_lanes(m, h, inertia, c_wheel, grip, rotor, s, np.uint64(1))
     _later_stages(model, s, 1, 0.01, 100.0, 0.1)

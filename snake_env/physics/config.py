@@ -79,9 +79,25 @@ DEFAULT_WHEEL_FRICTION = 0.8
 # measured under bang-bang torques on Snake5 and Snake12), while the motion's own excess starts at ~3e-3
 # of the grip (the smallest seen there): 1e-9 separates the two and counts no held wheel as sliding.
 SLIP_TOLERANCE = 1e-9
-# The physics of every id's previous version (forward and path v2, command and reach v1): ideal torque
-# sources and wheels that grip without limit (the paper's no-slip constraint at any force).
-PREVIOUS_VERSION_PHYSICS = {"actuator": "ideal", "wheel_friction": None}
+class _DefaultWheelModel(str):
+    """The default wheel_model's type while PhysicsConfig checks its fields: a str that tells it the model was
+    not given, so that unlimited grip (wheel_friction=None) may make it "no_slip" (an explicit "sliding" with
+    unlimited grip is refused). The stored value is a plain str."""
+
+
+# The wheels of the newest ids (forward v4): each grips within mu m_k g and slides under Coulomb friction beyond it.
+DEFAULT_WHEEL_MODEL = _DefaultWheelModel("sliding")
+# The physics of the earlier versions of every id, pinned in their registrations (snake_env.registration),
+# newest first: PHYSICS_HISTORY[k] is the version k + 1 before the newest.
+# - forward and path v3, command and reach v2: the servo motors of v4 with braking capped at their current
+#   limit, and the paper's no-slip wheels under the traction limit;
+# - forward and path v2, command and reach v1: ideal torque sources and wheels that grip without limit (the
+#   paper's no-slip constraint at any force). Unlimited grip makes wheel_model "no_slip" and an ideal source has
+#   no braking to cap (back_emf_braking False), so actuator="ideal", wheel_friction=None alone give v2 on any
+#   later id bit for bit; the registration pins all four, so that v2 with a finite mu keeps v2's no-slip wheels.
+TRACTION_LIMIT_PHYSICS = {"wheel_model": "no_slip", "back_emf_braking": False}
+IDEAL_PHYSICS = {"actuator": "ideal", "wheel_friction": None, **TRACTION_LIMIT_PHYSICS}
+PHYSICS_HISTORY = (TRACTION_LIMIT_PHYSICS, IDEAL_PHYSICS)
 
 
 @dataclass(frozen=True)
@@ -125,13 +141,14 @@ class PhysicsConfig:
     max_refinements: int = setting(DEFAULT_MAX_REFINEMENTS, "substep halvings", "int", minimum=0, strict=False,
                                    maximum=MAX_REFINEMENTS_LIMIT, doc="substep halvings of a failing step")
     wheel_friction: float | None = setting(DEFAULT_WHEEL_FRICTION, "-", "optional_real", minimum=0.0,
-                                           doc="wheel-floor friction coefficient mu: the motors' torques are scaled "
-                                               "so no wheel needs more than mu m_k g sideways (traction limit); "
-                                               "info wheel_slip flags the motion's excess; None: unlimited grip")
-    wheel_model: str = setting("no_slip", "-", "choice", maximum=WHEEL_MODELS,
-                               doc='"no_slip": the paper\'s wheels (eq. 27) under the traction limit; "sliding": '
-                                   'each wheel grips within mu m_k g and slides under Coulomb friction beyond it '
-                                   '(physics.sliding_wheels)')
+                                           doc="wheel-floor friction coefficient mu: each wheel holds mu m_k g "
+                                               "sideways (see wheel_model); None: unlimited grip, the paper's "
+                                               "no-slip wheels (wheel_model is then 'no_slip')")
+    wheel_model: str = setting(DEFAULT_WHEEL_MODEL, "-", "choice", maximum=WHEEL_MODELS,
+                               doc='"sliding": each wheel grips within mu m_k g and slides under Coulomb friction '
+                                   'beyond it (physics.sliding_wheels); "no_slip": the paper\'s wheels (eq. 27), the '
+                                   'motors\' torques scaled so no wheel needs more than mu m_k g (traction limit), '
+                                   'info wheel_slip flags the motion\'s excess')
     actuator: str = setting(DEFAULT_ACTUATOR, "-", "choice", maximum=ACTUATORS,
                             doc='joint motors: "ideal" torque sources, or a DC-motor preset (physics.actuators)')
     stall_torque: float | None = setting(None, "N m", "optional_real", minimum=0.0,
@@ -140,6 +157,10 @@ class PhysicsConfig:
                                           doc="joint rate at which the driving torque falls to 0 (None: the preset's)")
     torque_limit: float | None = setting(None, "N m", "optional_real", minimum=0.0,
                                          doc="current limit as a joint torque (None: the preset's)")
+    back_emf_braking: bool = setting(True, "-", "bool",
+                                     doc="a motor back-driven past omega_0 (1 + torque_limit / stall_torque) brakes "
+                                         "with its back-EMF's torque, which its driver cannot cap; False: braking "
+                                         "capped at torque_limit (v3 and before; dynamics.motor)")
     rotor_inertia: float = setting(0.0, "kg m^2", minimum=0.0, strict=False,
                                    doc="each joint motor's reflected rotor inertia N^2 J_r (gear ratio N; MuJoCo's "
                                        "joint armature): the spinning rotor's kinetic energy 1/2 N^2 J_r phidot^2 is "
@@ -185,16 +206,22 @@ class PhysicsConfig:
             for name, value in (("joint_damping", 0.0), ("wheel_damping", 0.0), ("joint_limit", None),
                                 ("actuator", "ideal"), ("wheel_friction", None)):
                 object.__setattr__(self, name, value)
-        latency_substeps(self.control_latency, self.sim_dt, self.frame_skip)  # one-line ValueError if not whole
-        if self.wheel_model == "sliding":
-            if self.wheel_friction is None:
+        if self.wheel_friction is None:  # unlimited grip: sliding wheels never slide, the no-slip model itself
+            if self.wheel_model == "sliding" and not isinstance(self.wheel_model, _DefaultWheelModel):
                 raise ValueError("wheel_model='sliding' needs wheel_friction, a mu > 0 (None: unlimited grip, the "
                                  "no-slip model itself)")
+            object.__setattr__(self, "wheel_model", "no_slip")
+        object.__setattr__(self, "wheel_model", str(self.wheel_model))
+        if self.actuator == "ideal":  # a torque source has no current limit to brake past
+            object.__setattr__(self, "back_emf_braking", False)
+        latency_substeps(self.control_latency, self.sim_dt, self.frame_skip)  # one-line ValueError if not whole
+        if self.wheel_model == "sliding":
             unsupported = [name for name in ("torque_lag", "control_latency") if getattr(self, name) != 0.0]
             unsupported += ["randomize"] if self.randomize not in (None, False) else []
             if unsupported:
-                raise ValueError(f"wheel_model='sliding' takes no {', '.join(unsupported)} yet (0 or None), "
-                                 f"got {', '.join(f'{name}={getattr(self, name)!r}' for name in unsupported)}")
+                raise ValueError(f"wheel_model='sliding' (the default) takes no {', '.join(unsupported)} yet (0 or "
+                                 f"None), got {', '.join(f'{name}={getattr(self, name)!r}' for name in unsupported)};"
+                                 f" wheel_model='no_slip' takes them")
         object.__setattr__(self, "_motor", resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed,
                                                             self.torque_limit))
         object.__setattr__(self, "_randomize", resolve_randomize(
@@ -217,10 +244,13 @@ class PhysicsConfig:
         return self.torque_lag == 0.0 and self.control_latency == 0.0
 
     @property
-    def previous_physics(self) -> bool:
-        """Whether these are the previous version's motors and wheels (:data:`PREVIOUS_VERSION_PHYSICS`:
-        ideal torque sources, unlimited grip), for which gaits were searched on the previous ids."""
-        return all(getattr(self, name) == value for name, value in PREVIOUS_VERSION_PHYSICS.items())
+    def versions_back(self) -> int:
+        """How many physics versions before the newest these motors and wheels are (:data:`PHYSICS_HISTORY`;
+        0: the newest's, or settings of no version), which picks the gaits searched on that version's ids."""
+        for back in range(len(PHYSICS_HISTORY), 0, -1):  # the oldest first: its pins include the later ones'
+            if all(getattr(self, name) == value for name, value in PHYSICS_HISTORY[back - 1].items()):
+                return back
+        return 0
 
     def wheel_load(self) -> np.ndarray:
         """m_k g (N) of every wheel (n,): its normal load on flat ground."""
@@ -255,6 +285,7 @@ class PhysicsConfig:
             wheel_grip=None if self.wheel_friction is None else self.grip(),
             # massless rotors leave the kernels' rotor terms out altogether (the previous physics bit for bit)
             rotor_inertia=np.full(self.n_links - 1, float(self.rotor_inertia)) if self.rotor_inertia > 0 else None,
+            back_emf_braking=self.back_emf_braking,
             **({} if self._motor is None else dict(
                 stall_torque=self._motor.stall_torque, torque_limit=self._motor.torque_limit,
                 inverse_no_load_speed=1.0 / self._motor.no_load_speed if self._motor.no_load_speed > 0 else 0.0)))

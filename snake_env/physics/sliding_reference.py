@@ -41,7 +41,7 @@ def sliding_wheels(config: PhysicsConfig, slip_speed: float = 1e-3) -> SlidingWh
     return SlidingWheels(model, float(config.wheel_friction), slip_speed, stall_torque=params.stall_torque,
                          no_load_speed=no_load, torque_limit=params.torque_limit, joint_limit=params.joint_limit,
                          limit_stiffness=params.limit_stiffness, limit_damping=params.limit_damping,
-                         rotor_inertia=params.rotor_inertia)
+                         rotor_inertia=params.rotor_inertia, back_emf_braking=params.back_emf_braking)
 
 
 class SlidingSnake:

@@ -165,6 +165,8 @@ class PhysicsParams:
             ``compiled.traction_derivatives``; None: unlimited grip (the paper's no-slip wheels).
         rotor_inertia (kg m^2): each joint motor's reflected rotor inertia N^2 J_r (n-1,); None: massless
             rotors (``compiled.KernelModel``).
+        back_emf_braking: a motor back-driven past its current limit brakes with its back-EMF's torque
+            (:mod:`snake_env.dynamics.motor`; the physics from v4); False: braking capped at torque_limit.
 
     The kernels take these as two arguments, :attr:`kernel_model` (``compiled.KernelModel``)
     and :attr:`kernel_settings` (:class:`StepSettings`), made on first use.
@@ -191,6 +193,7 @@ class PhysicsParams:
     torque_limit: float = math.inf
     wheel_grip: np.ndarray | None = None
     rotor_inertia: np.ndarray | None = None
+    back_emf_braking: bool = False
 
     @property
     def n_links(self) -> int:
@@ -202,7 +205,7 @@ class PhysicsParams:
         return compiled.kernel_model(self.mass, self.half_length, self.inertia, self.joint_damping,
                                      self.wheel_damping, self.joint_limit, self.limit_stiffness, self.limit_damping,
                                      self.stall_torque, self.inverse_no_load_speed, self.torque_limit,
-                                     self.wheel_grip, self.rotor_inertia)
+                                     self.wheel_grip, self.rotor_inertia, self.back_emf_braking)
 
     @cached_property
     def kernel_settings(self) -> tuple:

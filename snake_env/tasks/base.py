@@ -330,7 +330,7 @@ class Task:
         if gait is not None:
             raise ValueError(f"gait applies to the forward task; the {cls.name} baseline steers the gait of "
                              f"snake_env/Snake{config.n_links}-v*, got gait={gait!r}")
-        params, speed = gait_for_links(config.n_links, gaits, config.previous_physics)
+        params, speed = gait_for_links(config.n_links, gaits, config.versions_back)
         if speed is None:
             raise ValueError(f"the serpenoid gait for n_links={config.n_links} has no search.mean_forward_velocity")
         return make_baseline(cls.baseline_controller, cls.name, params, speed, num_envs=num_envs,

@@ -78,6 +78,15 @@ class CommandTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v3: wheels that slide and back-EMF braking, as the forward task's v4
+      (docs/envs/forward.md): each wheel grips within mu m_k g and slides under
+      Coulomb friction beyond it (`wheel_model="sliding"`) instead of the no-slip
+      wheels under the traction limit, and a joint back-driven past 2 omega_0 is
+      braked by its motor's back-EMF beyond the current limit
+      (`back_emf_braking=True`). `snake_env/SnakeCommand{n}-v2` is still
+      registered with `wheel_model="no_slip", back_emf_braking=False`, its physics
+      bit for bit, and v1 with `actuator="ideal", wheel_friction=None`. The
+      baseline steers the newest serpenoid of that n, searched on these wheels.
     * v2: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
       1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
       mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
@@ -110,7 +119,7 @@ class CommandTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "command"
-    id_prefix, version = "SnakeCommand", 2
+    id_prefix, version = "SnakeCommand", 3
     episode_metrics = {"mean_speed_error": ("speed_error", "mean_abs"),
                        "mean_yaw_rate_error": ("yaw_rate_error", "mean_abs")}
     baseline_name, baseline_controller = "steering", SteeringController

@@ -164,10 +164,11 @@ class ForwardTask(Task):
     | `joint_limit_stiffness` | 20.0 | least barrier stiffness beyond the limit (N m/rad); raised to 10 * max_torque |
     | `joint_limit_damping` | 0.2 | barrier damper at that least stiffness (N m s/rad) |
     | `paper_model` | False | True: joint_damping = wheel_damping = 0, no limits (the paper's model) |
-    | `wheel_friction` | 0.8 | mu of the wheels on the floor (> 0; rubber on concrete): the traction limit scales the motors' torques, on every substep, by the largest s <= 1 that keeps each wheel's sideways force within mu m_k g (or adds nothing where the motion alone exceeds it); None: unlimited grip (v2) |
-    | `wheel_model` | "no_slip" | "no_slip": the paper's wheels (eq. 27) under the traction limit; "sliding": each wheel grips within `wheel_friction` m_k g and slides under Coulomb friction beyond it, the n + 2 coordinates of eqs. 22-25 time-stepped at 1 ms (`snake_env.physics.sliding_wheels`; no torque_lag, control_latency or randomize yet); `wheel_slip` then flags the wheels that slide and `wheel_lateral_force` is their friction |
+    | `wheel_friction` | 0.8 | mu of the wheels on the floor (> 0; rubber on concrete): each wheel holds mu m_k g sideways; None: unlimited grip, the paper's no-slip wheels (v2; `wheel_model` is then "no_slip") |
+    | `wheel_model` | "sliding" | "sliding": each wheel grips within `wheel_friction` m_k g and slides under Coulomb friction beyond it, the n + 2 coordinates of eqs. 22-25 time-stepped at 1 ms (`snake_env.physics.sliding_wheels`; no torque_lag, control_latency or randomize yet); `wheel_slip` flags the wheels that slide and `wheel_lateral_force` is their friction. "no_slip" (v3): the paper's wheels (eq. 27) under the traction limit, which scales the motors' torques, on every substep, by the largest s <= 1 that keeps each wheel's sideways force within mu m_k g (or adds nothing where the motion alone exceeds it) |
     | `actuator` | "servo" | joint motors: "ideal" torque sources (v2), or a DC-motor preset "servo" (1 N m, 3.14 rad/s), "xh430_w350", "dc_motor" (`snake_env.physics.actuators`): the torque T_k = max_torque * a_k is a command, clipped to stall_torque (1 - phidot_k / no_load_speed) above and -stall_torque (1 + phidot_k / no_load_speed) below, then to +-torque_limit |
     | `stall_torque`, `no_load_speed`, `torque_limit` | None | N m, rad/s, N m: override the preset's motor constants |
+    | `back_emf_braking` | True | a motor back-driven past no_load_speed (1 + torque_limit / stall_torque) brakes with its back-EMF's torque, stall_torque (abs(phidot_k) / no_load_speed - 1), which the current limit cannot cap (the command is clipped to +-torque_limit first, then to the band); False: braking capped at torque_limit (v3) |
     | `rotor_inertia` | 0.0 | kg m^2: each joint motor's reflected rotor inertia N^2 J_r (MuJoCo's armature), its kinetic energy 1/2 N^2 J_r phidot_k^2 in the dynamics and the energy check; 0: massless rotors (every preset) |
     | `torque_lag` | 0.0 | s: time constant of the first-order lag from command to torque (the current loop); 0: instant |
     | `control_latency` | 0.0 | s: delay of each command before it reaches the motor, whole sim_dt substeps, at most dt; 0: none |
@@ -192,6 +193,18 @@ class ForwardTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v4: wheels that slide: each wheel grips within mu m_k g and slides under
+      Coulomb friction beyond it (`wheel_model="sliding"`, the n + 2 coordinates of
+      eqs. 22-25 time-stepped with the friction solved exactly), instead of the
+      no-slip wheels under the traction limit, which held a wheel at its grip
+      where a real one slides and so flattered learned long-snake gaits
+      (docs/env.md); and back-EMF braking (`back_emf_braking=True`): a joint
+      back-driven past 2 omega_0 (the `servo` preset) is braked by its motor's
+      back-EMF beyond the current limit, which capped it before. `wheel_slip`
+      flags the wheels that slide, `wheel_lateral_force` is their friction and
+      `traction_scale` is 1. `snake_env/Snake{n}-v3` is still registered with
+      `wheel_model="no_slip", back_emf_braking=False`, its physics bit for bit,
+      and v2 with `actuator="ideal", wheel_friction=None`.
     * v3: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
       1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
       mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
@@ -231,7 +244,7 @@ class ForwardTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "forward"
-    id_prefix, version = "Snake", 3
+    id_prefix, version = "Snake", 4
     step_info_keys = ("reward_forward", "reward_ctrl")
     baseline_name = "serpenoid"
 
@@ -240,7 +253,7 @@ class ForwardTask(Task):
         """The searched serpenoid of ``gait`` (an env id of the gait file; default: the newest
         ``snake_env/Snake{n}-v*`` of this n searched on this physics), run open loop in its own clock."""
         params = (load_params(gait, gaits)[0] if gait is not None
-                  else gait_for_links(config.n_links, gaits, config.previous_physics)[0])
+                  else gait_for_links(config.n_links, gaits, config.versions_back)[0])
         return SerpenoidController(params, num_envs=num_envs, **controller_geometry(config))
 
     def evaluate(self, config, ctx: StepContext, state):

@@ -81,6 +81,15 @@ class PathTask(Task):
     | `ctrl_cost_weight` | 1e-4 | weight of ||a||^2 |
 
     ## Version History
+    * v4: wheels that slide and back-EMF braking, as the forward task's v4
+      (docs/envs/forward.md): each wheel grips within mu m_k g and slides under
+      Coulomb friction beyond it (`wheel_model="sliding"`) instead of the no-slip
+      wheels under the traction limit, and a joint back-driven past 2 omega_0 is
+      braked by its motor's back-EMF beyond the current limit
+      (`back_emf_braking=True`). `snake_env/SnakePath{n}-v3` is still
+      registered with `wheel_model="no_slip", back_emf_braking=False`, its physics
+      bit for bit, and v2 with `actuator="ideal", wheel_friction=None`. The
+      baseline steers the newest serpenoid of that n, searched on these wheels.
     * v3: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
       1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
       mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
@@ -118,7 +127,7 @@ class PathTask(Task):
                                       doc="weight of ||a||^2")
 
     name = "path"
-    id_prefix, version = "SnakePath", 3
+    id_prefix, version = "SnakePath", 4
     episode_metrics = {"mean_cross_track_error": ("cross_track_error", "mean_abs"),
                        "mean_path_speed": ("path_speed", "mean")}
     baseline_name, baseline_controller = "los", LineOfSightController

@@ -68,6 +68,15 @@ class ReachTask(Task):
     | `terminate_on_success` | True | end the episode on success |
 
     ## Version History
+    * v3: wheels that slide and back-EMF braking, as the forward task's v4
+      (docs/envs/forward.md): each wheel grips within mu m_k g and slides under
+      Coulomb friction beyond it (`wheel_model="sliding"`) instead of the no-slip
+      wheels under the traction limit, and a joint back-driven past 2 omega_0 is
+      braked by its motor's back-EMF beyond the current limit
+      (`back_emf_braking=True`). `snake_env/SnakeReach{n}-v2` is still
+      registered with `wheel_model="no_slip", back_emf_braking=False`, its physics
+      bit for bit, and v1 with `actuator="ideal", wheel_friction=None`. The
+      baseline steers the newest serpenoid of that n, searched on these wheels.
     * v2: a robot a lab could build: the joints are servo motors (`actuator="servo"`:
       1 N m stall torque, 3.14 rad/s no-load speed) and the wheels grip up to
       mu m_k g (`wheel_friction=0.8`, rubber on concrete) under the traction
@@ -95,7 +104,7 @@ class ReachTask(Task):
     terminate_on_success: bool = setting(True, "-", "bool", doc="end the episode on success")
 
     name = "reach"
-    id_prefix, version = "SnakeReach", 2
+    id_prefix, version = "SnakeReach", 3
     max_episode_steps = 400
     goal_env = True
     step_info_keys = ("reward_goal", "goal_distance", "is_success")

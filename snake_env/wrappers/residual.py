@@ -96,7 +96,7 @@ class _SteeringResidual(_BaselineResidual):
             raise ValueError(f"baseline must be one of {list(STEERING_BASELINES)}, got {baseline!r}")
         if baseline == "gait":
             geometry = env_geometry(env)
-            previous = env.unwrapped.config.previous_physics
+            previous = env.unwrapped.config.versions_back
             controller = StraightGait(gait_for_links(geometry["n_links"], None, previous)[0], num_envs=num_envs,
                                       **controller_kwargs(geometry))
         else:

@@ -91,7 +91,7 @@ def test_turning_gain_is_positive_and_the_yaw_rate_proportional_to_the_offset():
 def test_batched_success_rate_equals_the_single_env_episode():
     """One sub-env of the vector env reproduces gym.make(id) under the same seed, so success_rate with one
     episode equals goal seeking rolled out in the single env."""
-    params, speed = gait_for_links(5, previous_physics=True)  # SnakeReach5-v1: the previous physics' gait
+    params, speed = gait_for_links(5, versions_back=2)  # SnakeReach5-v1: the ideal physics' gait (two versions back)
     for seed in (0, 1, 3):
         rate, steps = success_rate("snake_env/SnakeReach5-v1", {"gain": 0.3}, 1, seed)
         env = gym.make("snake_env/SnakeReach5-v1")

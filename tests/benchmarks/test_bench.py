@@ -74,17 +74,17 @@ def test_memory_and_startup_numbers_are_sane(quick_run):
     assert 0 < startup["import_and_first_step_s"] <= startup["process_wall_s"]
 
 
-def test_startup_of_the_sliding_wheels_is_measured_and_reported():
-    """The sliding wheels' kernels are others than the no-slip ones: the startup section times their first step
-    too (here from the current cache; snake-bench's full run from an empty one) and the table names it."""
+def test_startup_of_the_no_slip_wheels_is_measured_and_reported():
+    """The no-slip wheels' kernels are others than the default sliding ones: the startup section times their
+    first step too (here from the current cache; snake-bench's full run from an empty one) and the table names it."""
     from snake_env.benchmarks import bench_sections
 
-    sliding = bench_sections.startup_time(5, 1, cold=False, env_kwargs={"wheel_model": "sliding"})
-    assert sliding["env_kwargs"] == {"wheel_model": "sliding"}
-    first = sliding["first_run"]
+    no_slip = bench_sections.startup_time(5, 1, cold=False, env_kwargs={"wheel_model": "no_slip"})
+    assert no_slip["env_kwargs"] == {"wheel_model": "no_slip"}
+    first = no_slip["first_run"]
     assert 0 < first["import_and_first_step_s"] <= first["plus_vector_first_step_s"]
-    rows = bench_report.table_rows({"startup_sliding": {**sliding, "cold_start_s": first["plus_vector_first_step_s"]}})
-    assert any("wheel_model='sliding'" in item for _, item, _ in rows)
+    rows = bench_report.table_rows({"startup_no_slip": {**no_slip, "cold_start_s": first["plus_vector_first_step_s"]}})
+    assert any("wheel_model='no_slip'" in item for _, item, _ in rows)
 
 
 def test_targets_agree_with_the_measurements(quick_run):

@@ -27,7 +27,7 @@ def test_reduced_fuzz_with_lag_latency_and_randomized_robots_leaks_nothing():
     """The substep-by-substep step (torque lag, latency) and the row-by-row step (randomize) on the cells
     where v0 leaked, with the substeps the env picks: every step reported as valid is finite, balanced
     and unfolded."""
-    extra = {"torque_lag": 0.02, "control_latency": 0.02, "randomize": True}
+    extra = {"torque_lag": 0.02, "control_latency": 0.02, "randomize": True, "wheel_model": "no_slip"}
     cells = [c for c in fuzz.matrix() if not c["paper_model"]
              and (c["n_links"], c["max_torque"], c["length"], c["mass"]) in fuzz.QUICK_CELLS]
     rows = [fuzz.run_cell({**c, **extra}, num_envs=16, steps=16 * 40, seed=2, auto_substeps=True) for c in cells]
@@ -40,12 +40,14 @@ def test_reduced_fuzz_with_lag_latency_and_randomized_robots_leaks_nothing():
 
 
 @pytest.mark.parametrize("extra, num_envs, seed", [
-    ({"rotor_inertia": 0.005}, 32, 3),  # the joint motors' rotors, the order of a Dynamixel's (kg m^2)
-    ({"wheel_model": "sliding"}, 16, 4),  # the time-stepped chain with Coulomb friction at the wheels
+    ({"rotor_inertia": 0.005, "wheel_model": "no_slip"}, 32, 3),  # the motors' rotors, a Dynamixel's order (kg m^2)
+    ({"rotor_inertia": 0.005}, 16, 5),  # the same on the default sliding wheels (their null-space solve)
+    ({"wheel_model": "no_slip"}, 32, 4),  # v3's no-slip wheels under the traction limit (the default slides)
 ])
-def test_reduced_fuzz_with_rotors_or_sliding_wheels_leaks_nothing(extra, num_envs, seed):
-    """Rotor inertia, and wheels that slide, on the cells where v0 leaked, with the substeps the env picks:
-    every step reported as valid is finite, balanced and unfolded."""
+def test_reduced_fuzz_with_rotors_or_either_wheels_leaks_nothing(extra, num_envs, seed):
+    """Rotor inertia on either wheels, and the no-slip wheels (the test above runs the default sliding ones), on
+    the cells where v0 leaked, with the substeps the env picks: every step reported as valid is finite, balanced
+    and unfolded."""
     cells = [c for c in fuzz.matrix() if not c["paper_model"]
              and (c["n_links"], c["max_torque"], c["length"], c["mass"]) in fuzz.QUICK_CELLS]
     rows = [fuzz.run_cell({**c, **extra}, num_envs=num_envs, steps=num_envs * 40, seed=seed, auto_substeps=True)

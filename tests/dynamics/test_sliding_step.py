@@ -28,7 +28,7 @@ def step(wheels, y, substeps, steps, command=COMMAND):
 def test_kinetic_energy_is_eq_22_with_rotors(start):
     model, q, qdot = start
     wheels = SlidingWheels(model, 0.8, rotor_inertia=np.full(N - 1, 0.004), **SERVO)
-    _, _, _, inertia, lever, _, _, _, _, _, _, _, _, _, _, rotor, mass = wheels.compiled_constants()
+    _, _, _, inertia, lever, _, _, _, _, _, _, _, _, _, _, _, rotor, mass = wheels.compiled_constants()
     rng = np.random.default_rng(1)
     for _ in range(5):
         qq = np.concatenate([rng.uniform(-2, 2, N), rng.normal(size=2)])

@@ -77,9 +77,10 @@ def test_reset_is_near_straight_and_centred():
 
 
 def test_observation_layout_matches_the_dynamics(rng):
-    """Each block of the observation against SnakeModel's numpy kinematics."""
+    """Each block of the observation against SnakeModel's numpy kinematics (the no-slip wheels, whose state is
+    (q, u); on sliding wheels the rates come from the chain's own velocities, tests/physics/test_sliding_wheels.py)."""
     n = 6
-    env = SnakeEnv(n_links=n, exclude_current_positions_from_observation=False)
+    env = SnakeEnv(n_links=n, exclude_current_positions_from_observation=False, wheel_model="no_slip")
     env.reset(seed=1)
     for _ in range(30):
         obs, _, _, _, info = env.step(rng.uniform(-1, 1, n - 1))

@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import snake_env  # noqa: F401
-from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS
+from snake_env.physics.config import IDEAL_PHYSICS, PHYSICS_HISTORY, TRACTION_LIMIT_PHYSICS
 from snake_env.registration import REGISTERED_N_LINKS, registered_ids
 from snake_env.tasks import TASKS
 from snake_env.tasks.base import squared_norm
@@ -42,25 +42,27 @@ def test_gymnasium_and_sb3_checkers_pass(env_id, kwargs):
 
 @pytest.mark.parametrize("task", TASKS)
 def test_registered_version_is_the_newest_of_the_version_history_and_older_ones_are_refused(task):
-    """The newest version and the one before (its physics pinned) are registered; older ones are refused."""
+    """The newest version and the two before (their physics pinned) are registered; older ones are refused."""
     prefix, version = TASKS[task].id_prefix, TASKS[task].version
     history = [int(v) for v in re.findall(r"^\s*\* v(\d+):", TASKS[task].__doc__, re.MULTILINE)]
     assert history and history[0] == max(history) == version
-    assert gym.spec(f"snake_env/{prefix}5-v{version - 1}").kwargs["actuator"] == "ideal"
+    assert gym.spec(f"snake_env/{prefix}5-v{version - 1}").kwargs["wheel_model"] == "no_slip"
+    assert gym.spec(f"snake_env/{prefix}5-v{version - 2}").kwargs["actuator"] == "ideal"
     with pytest.raises(gym.error.DeprecatedEnv, match=f"{prefix}5-v{version}"):
-        gym.make(f"snake_env/{prefix}5-v{version - 2}")
+        gym.make(f"snake_env/{prefix}5-v{version - 3}")
 
 
 def test_every_family_is_registered_for_every_n_with_its_task_settings():
     ids = registered_ids()
-    assert len(ids) == 2 * len(TASKS) * (1 + len(REGISTERED_N_LINKS))
+    assert len(ids) == (1 + len(PHYSICS_HISTORY)) * len(TASKS) * (1 + len(REGISTERED_N_LINKS))
     for task, cls in TASKS.items():
         prefix, version = cls.id_prefix, cls.version
         for n in REGISTERED_N_LINKS:
             spec = gym.spec(f"snake_env/{prefix}{n}-v{version}")
             assert spec.kwargs == {"task": task, "n_links": n}
-            assert gym.spec(f"snake_env/{prefix}{n}-v{version - 1}").kwargs == {
-                "task": task, "n_links": n, **PREVIOUS_VERSION_PHYSICS}
+            for back, physics in enumerate(PHYSICS_HISTORY, start=1):
+                assert gym.spec(f"snake_env/{prefix}{n}-v{version - back}").kwargs == {
+                    "task": task, "n_links": n, **physics}
             assert spec.max_episode_steps == cls.max_episode_steps
             assert spec.entry_point.endswith("SnakeGoalEnv" if cls.goal_env else "SnakeEnv")
             assert spec.vector_entry_point == "snake_env.envs.vector:SnakeVectorEnv"
@@ -69,12 +71,16 @@ def test_every_family_is_registered_for_every_n_with_its_task_settings():
     assert env.action_space.shape == (6,) and env.observation_space.shape == (20,)
 
 
-def test_the_previous_version_is_the_new_task_on_the_previous_physics():
-    """Snake5-v2 is Snake5-v3 with ideal torque sources and unlimited grip, step for step."""
+@pytest.mark.parametrize("old_id, physics", [("snake_env/Snake5-v3", TRACTION_LIMIT_PHYSICS),
+                                             ("snake_env/Snake5-v2", IDEAL_PHYSICS)])
+def test_an_earlier_version_is_the_newest_task_on_its_physics(old_id, physics):
+    """Snake5-v3 is Snake5-v4 with no-slip wheels under the traction limit and braking capped at the current
+    limit, Snake5-v2 is Snake5-v4 with ideal torque sources and unlimited grip, step for step; the newest
+    differs from both."""
     actions = np.random.default_rng(0).uniform(-1, 1, (50, 4))
-    previous = gym.make("snake_env/Snake5-v2")
-    pinned = gym.make("snake_env/Snake5-v3", **PREVIOUS_VERSION_PHYSICS)
-    newest = gym.make("snake_env/Snake5-v3")
+    previous = gym.make(old_id)
+    pinned = gym.make("snake_env/Snake5-v4", **physics)
+    newest = gym.make("snake_env/Snake5-v4")
     for env in (previous, pinned, newest):
         env.reset(seed=0)
     for a in actions:

@@ -28,7 +28,7 @@ def continuous_mean(command, start, lag, t0, t1, points=20001):
 def test_step_response_shows_the_lag_and_the_latency(lag, latency):
     """From rest, a command step of 0.8 N m at t = 0: the torque held over each 10 ms substep is the
     continuous lag's mean over it, 0 until the latency has passed."""
-    config = PhysicsConfig(n_links=4, torque_lag=lag, control_latency=latency)
+    config = PhysicsConfig(wheel_model="no_slip", n_links=4, torque_lag=lag, control_latency=latency)
     _, params = config.build()
     response = ActuatorResponse(config, params, num_envs=1)
     command = np.full((1, 3), 0.8)
@@ -58,7 +58,7 @@ def test_split_step_without_lag_equals_the_one_call_step(rng, grip):
     RK4: with refinement the paths differ where a step is refined (the split path halves only the
     substep that fails, the one-call path the whole env step), and an energy tolerance no step nears (the
     split path holds each substep to a quarter of it)."""
-    env = SnakeEnv(n_links=6, wheel_friction=grip, integrator="rk4", energy_tolerance=1.0)
+    env = SnakeEnv(wheel_model="no_slip", n_links=6, wheel_friction=grip, integrator="rk4", energy_tolerance=1.0)
     env.reset(seed=3)
     batch = env.unwrapped._batch
     q, u = batch.q.copy(), batch.u.copy()
@@ -83,7 +83,7 @@ def test_env_step_equals_the_pure_api_stepped_substep_by_substep(rng):
     lag's means computed here: the same states, the summed work, the CM velocity over dt, and the
     actuator power from the torques held substep by substep."""
     lag, latency = 0.025, 0.02
-    env = SnakeEnv(n_links=5, torque_lag=lag, control_latency=latency)
+    env = SnakeEnv(wheel_model="no_slip", n_links=5, torque_lag=lag, control_latency=latency)
     env.reset(seed=4)
     params = env.unwrapped.params
     one = dataclasses.replace(params, frame_skip=1, energy_tolerance=params.energy_tolerance / params.frame_skip)
@@ -118,7 +118,7 @@ def test_env_step_equals_the_pure_api_stepped_substep_by_substep(rng):
 
 def test_work_energy_balance_holds_over_the_split_step(rng):
     """K1 - K0 equals the work of all loads over each env step to the integration's accuracy."""
-    env = SnakeEnv(n_links=8, torque_lag=0.02, control_latency=0.01)
+    env = SnakeEnv(wheel_model="no_slip", n_links=8, torque_lag=0.02, control_latency=0.01)
     env.reset(seed=0)
     kinetic = env.unwrapped._batch.aux[0, AUX_KINETIC]
     for _ in range(100):
@@ -130,7 +130,7 @@ def test_work_energy_balance_holds_over_the_split_step(rng):
 
 def test_a_failed_step_is_undone_with_its_lag_state():
     """A step the check refuses keeps the pre-step state and the lag's state before it."""
-    env = SnakeEnv(n_links=5, torque_lag=0.02, integrator="rk4", energy_tolerance=1e-14, paper_model=False)
+    env = SnakeEnv(wheel_model="no_slip", n_links=5, torque_lag=0.02, integrator="rk4", energy_tolerance=1e-14, paper_model=False)
     env.reset(seed=1)
     batch = env.unwrapped._batch
     q0 = batch.q.copy()
@@ -144,12 +144,12 @@ def test_a_failed_step_is_undone_with_its_lag_state():
 
 def test_vector_rows_equal_single_envs_and_autoreset_clears_the_lag(rng):
     kwargs = dict(n_links=5, torque_lag=0.03, control_latency=0.02)
-    vec = SnakeVectorEnv(num_envs=3, max_episode_steps=6, **kwargs)
+    vec = SnakeVectorEnv(wheel_model="no_slip", num_envs=3, max_episode_steps=6, **kwargs)
     vec.reset(seed=2)
     q, u = vec.state
     singles = []
     for b in range(3):
-        env = SnakeEnv(**kwargs)
+        env = SnakeEnv(wheel_model="no_slip", **kwargs)
         env.set_state(q[b], u[b])
         singles.append(env)
     assert_rows_step_like_singles(vec, singles, rng, 5, ["actuator_power"])
@@ -170,5 +170,5 @@ def test_vector_rows_equal_single_envs_and_autoreset_clears_the_lag(rng):
 ])
 def test_bad_lag_or_latency_is_a_one_line_error(kwargs, message):
     with pytest.raises(ValueError, match=message) as error:
-        SnakeEnv(n_links=5, **kwargs)
+        SnakeEnv(wheel_model="no_slip", n_links=5, **kwargs)
     assert "\n" not in str(error.value)

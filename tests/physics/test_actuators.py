@@ -26,6 +26,51 @@ def test_envelope_is_the_torque_speed_band_then_the_current_limit():
     np.testing.assert_allclose(low, [2.5, 0.0, -2.0, -2.5, -2.5, -2.5])
 
 
+def test_back_emf_braking_clips_to_the_limit_first_and_differs_only_past_the_overlap():
+    """With back-EMF braking (v4) the torque is the command clipped to the current limit, then to the band: the
+    same bits as the band-first clip wherever the two overlap (|phidot| <= omega_0 (1 + limit / stall)), and
+    past that a brake of at least stall (|phidot| / omega_0 - 1), beyond the limit."""
+    stall, omega_0, limit = 1.0, 3.14, 1.0
+    phidot = np.linspace(-20.0, 20.0, 4001)
+    for command in (-5.0, -1.0, 0.0, 0.3, 1.0, 5.0):
+        braking = motor_torque_reference(np.full_like(phidot, command), phidot, stall, omega_0, limit, braking=True)
+        capped = motor_torque_reference(np.full_like(phidot, command), phidot, stall, omega_0, limit)
+        edge = omega_0 * (1.0 + limit / stall)  # 6.28 rad/s; the samples within rounding of it are left out
+        overlap, past = np.abs(phidot) < edge - 1e-9, np.abs(phidot) > edge + 1e-9
+        assert np.array_equal(braking[overlap], capped[overlap])
+        np.testing.assert_allclose(braking[past], -stall * (phidot[past] / omega_0 - np.sign(phidot[past])),
+                                   rtol=1e-12)
+        assert np.all(np.abs(capped) <= limit) and np.all(np.abs(braking[past]) > limit)
+
+
+@pytest.mark.parametrize("braking", [False, True])
+def test_the_compiled_motor_and_the_sliding_step_brake_as_the_reference(rng, braking):
+    """The RK4 sweep and the sliding wheels' joint torques apply the motor of the reference, with and without
+    back-EMF braking, at joint rates up to 4 omega_0 (past the overlap)."""
+    from snake_env.dynamics import sliding_step
+
+    n = 6
+    model = SnakeModel(n, joint_damping=0.05, wheel_damping=0.1)
+    params = model.parameters()
+    motor = compiled.kernel_model(*params, 0.0, 0.0, 0.0, 1.2, 1.0 / 2.5, 1.2, back_emf_braking=braking)
+    ideal = compiled.kernel_model(*params)
+    for _ in range(20):
+        q = np.r_[rng.uniform(-1, 1, n), 0.0, 0.0]
+        u = rng.normal(size=2) * 8
+        command = rng.uniform(-3, 3, n - 1)
+        _, omega = model.link_velocities(q, u)
+        phidot = np.diff(omega)
+        delivered = motor_torque_reference(command, phidot, 1.2, 2.5, 1.2, braking=braking)
+        dq, du, dq_ref, du_ref = np.empty(n + 2), np.empty(2), np.empty(n + 2), np.empty(2)
+        compiled.derivatives(motor, q, u, command, dq, du)
+        compiled.derivatives(ideal, q, u, delivered, dq_ref, du_ref)
+        np.testing.assert_allclose(du, du_ref, rtol=1e-12, atol=1e-12)
+        out, motor_share = np.empty(n - 1), np.empty(n - 1)
+        sliding_step.joint_torques(command, np.zeros(n - 1), phidot, np.zeros(n - 1), 1.2, 1.0 / 2.5, 1.2,
+                                   1.0 if braking else 0.0, 0.0, 0.0, 0.0, 0.0, out, motor_share)
+        np.testing.assert_allclose(motor_share, delivered, rtol=1e-12, atol=1e-12)
+
+
 @pytest.mark.parametrize("n", [3, 8])
 def test_compiled_sweep_applies_the_motor_to_the_command(rng, n):
     """derivatives() with a motor equals the ideal sweep fed the motor's torques (phidot from eq. 7)."""

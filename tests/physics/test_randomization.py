@@ -22,7 +22,7 @@ def test_draws_are_reproducible_by_seed_and_differ_between_seeds(rng):
     actions = rng.uniform(-1, 1, (30, 4))
     runs = []
     for seed in (7, 7, 8):
-        env = SnakeEnv(n_links=5, randomize=True)
+        env = SnakeEnv(wheel_model="no_slip", n_links=5, randomize=True)
         obs, info = env.reset(seed=seed)
         trajectory = [obs] + [env.step(a)[0] for a in actions]
         runs.append((drawn(info), np.array(trajectory)))
@@ -35,8 +35,8 @@ def test_draws_are_reproducible_by_seed_and_differ_between_seeds(rng):
 
 
 def test_draws_stay_within_their_bounds():
-    vec = SnakeVectorEnv(num_envs=64, n_links=6, randomize=True)
-    config = PhysicsConfig(n_links=6)
+    vec = SnakeVectorEnv(wheel_model="no_slip", num_envs=64, n_links=6, randomize=True)
+    config = PhysicsConfig(wheel_model="no_slip", n_links=6)
     nominal = {"mass": 1.0, "inertia": 0.005, "stall_torque": config._motor.stall_torque,
                "no_load_speed": config._motor.no_load_speed, "wheel_damping": config.wheel_damping}
     seen = {name: [] for name in FULL}
@@ -60,14 +60,14 @@ def test_draws_stay_within_their_bounds():
 
 def test_each_row_is_the_robot_it_reports(rng):
     """A randomized vector env's row steps bit for bit like a single env built with the drawn values."""
-    vec = SnakeVectorEnv(num_envs=3, n_links=5, randomize=True)
+    vec = SnakeVectorEnv(wheel_model="no_slip", num_envs=3, n_links=5, randomize=True)
     _, info = vec.reset(seed=3)
     q, u = vec.state
     rows = []
     for b in range(3):
         values = {name: value[b] for name, value in drawn(info).items()}
         strength = values["stall_torque"]  # the servo preset's limit equals its stall torque
-        env = SnakeEnv(n_links=5, mass=list(values["mass"]), inertia=list(values["inertia"]),
+        env = SnakeEnv(wheel_model="no_slip", n_links=5, mass=list(values["mass"]), inertia=list(values["inertia"]),
                        stall_torque=strength, torque_limit=strength, no_load_speed=values["no_load_speed"],
                        wheel_damping=float(values["wheel_damping"]), wheel_friction=float(values["wheel_friction"]),
                        control_latency=float(values["control_latency"]))
@@ -78,32 +78,32 @@ def test_each_row_is_the_robot_it_reports(rng):
 
 
 def test_off_by_default_and_named_ranges_draw_only_those():
-    _, info = SnakeEnv(n_links=4).reset(seed=0)
+    _, info = SnakeEnv(wheel_model="no_slip", n_links=4).reset(seed=0)
     assert not drawn(info)
-    _, info = SnakeEnv(n_links=4, randomize={"wheel_friction": [0.6, 0.7]}).reset(seed=0)
+    _, info = SnakeEnv(wheel_model="no_slip", n_links=4, randomize={"wheel_friction": [0.6, 0.7]}).reset(seed=0)
     assert set(drawn(info)) == {"wheel_friction"} and 0.6 <= info["randomized_wheel_friction"] <= 0.7
-    ideal = SnakeEnv(n_links=4, actuator="ideal", wheel_friction=None, randomize=True)
+    ideal = SnakeEnv(wheel_model="no_slip", n_links=4, actuator="ideal", wheel_friction=None, randomize=True)
     assert set(drawn(ideal.reset(seed=0)[1])) == {"mass", "inertia", "wheel_damping", "control_latency"}
 
 
 def test_rotor_inertia_is_drawn_only_with_rotors_and_leaves_the_other_draws_alone(rng):
     """With rotors randomize=True also draws rotor_inertia, within its bounds and after every other draw (so
     the other draws of a seed are those without rotors); a row is the single env with the drawn rotors."""
-    plain = SnakeEnv(n_links=5, randomize=True).reset(seed=4)[1]
-    geared = SnakeEnv(n_links=5, rotor_inertia=0.004, randomize=True).reset(seed=4)[1]
+    plain = SnakeEnv(wheel_model="no_slip", n_links=5, randomize=True).reset(seed=4)[1]
+    geared = SnakeEnv(wheel_model="no_slip", n_links=5, rotor_inertia=0.004, randomize=True).reset(seed=4)[1]
     assert set(drawn(geared)) == set(FULL) | {"rotor_inertia"} and set(drawn(plain)) == set(FULL)
     for name in FULL:
         np.testing.assert_array_equal(drawn(plain)[name], drawn(geared)[name])
-    vec = SnakeVectorEnv(num_envs=32, n_links=4, rotor_inertia=0.004, randomize={"rotor_inertia": [0.5, 1.5]})
+    vec = SnakeVectorEnv(wheel_model="no_slip", num_envs=32, n_links=4, rotor_inertia=0.004, randomize={"rotor_inertia": [0.5, 1.5]})
     _, info = vec.reset(seed=1)
     factors = info["randomized_rotor_inertia"] / 0.004
     assert factors.min() >= 0.5 and factors.max() <= 1.5 and factors.max() - factors.min() > 0.5
-    few = SnakeVectorEnv(num_envs=2, n_links=4, rotor_inertia=0.004, randomize={"rotor_inertia": [0.5, 1.5]})
+    few = SnakeVectorEnv(wheel_model="no_slip", num_envs=2, n_links=4, rotor_inertia=0.004, randomize={"rotor_inertia": [0.5, 1.5]})
     _, info = few.reset(seed=1)
     q, u = few.state
     rows = []
     for b in range(2):
-        env = SnakeEnv(n_links=4, rotor_inertia=float(info["randomized_rotor_inertia"][b]))
+        env = SnakeEnv(wheel_model="no_slip", n_links=4, rotor_inertia=float(info["randomized_rotor_inertia"][b]))
         env.reset(seed=0)
         env.set_state(q[b], u[b])
         rows.append(env)
@@ -111,7 +111,7 @@ def test_rotor_inertia_is_drawn_only_with_rotors_and_leaves_the_other_draws_alon
 
 
 def test_autoreset_reports_the_new_robots():
-    vec = SnakeVectorEnv(num_envs=2, n_links=4, max_episode_steps=2, randomize={"mass": [0.5, 1.5]})
+    vec = SnakeVectorEnv(wheel_model="no_slip", num_envs=2, n_links=4, max_episode_steps=2, randomize={"mass": [0.5, 1.5]})
     _, info = vec.reset(seed=0)
     before = info["randomized_mass"].copy()
     zeros = np.zeros((2, 3), np.float32)
@@ -137,13 +137,13 @@ def test_autoreset_reports_the_new_robots():
 ])
 def test_bad_randomize_is_a_one_line_error(kwargs, message):
     with pytest.raises(ValueError, match=message) as error:
-        SnakeEnv(n_links=5, **kwargs)
+        SnakeEnv(wheel_model="no_slip", n_links=5, **kwargs)
     assert "\n" not in str(error.value)
 
 
 def test_stiff_draws_get_their_substeps_with_the_default_sim_dt():
     """Light links drawn under the default sim_dt are run with more substeps, not refused."""
-    env = SnakeEnv(n_links=5, randomize={"inertia": [0.01, 0.02]})
+    env = SnakeEnv(wheel_model="no_slip", n_links=5, randomize={"inertia": [0.01, 0.02]})
     env.reset(seed=0)
     robots = env.unwrapped._batch.physics
     assert robots.rows[0].params.substeps > 1 and math.isclose(env.unwrapped.dt, 0.04)

@@ -17,7 +17,7 @@ ENV = newest_id("Snake5")
 
 
 def rollout(wheel_friction, slip_speed, steps=10):
-    env = gym.make(ENV, wheel_friction=wheel_friction)
+    env = gym.make(ENV, wheel_friction=wheel_friction, wheel_model="no_slip")  # the reference against the no-slip env
     obs, _ = env.reset(seed=0)
     base = env.unwrapped
     snake = SlidingSnake(base.config, slip_speed)
@@ -54,4 +54,4 @@ def test_random_torques_make_wheels_slide_at_the_default_grip():
                                           ({"randomize": True}, "randomize must be None for the sliding")])
 def test_refuses_what_it_does_not_model(kwargs, name):
     with pytest.raises(ValueError, match=name):
-        SlidingSnake(PhysicsConfig(n_links=5, **kwargs))
+        SlidingSnake(PhysicsConfig(n_links=5, wheel_model="no_slip", **kwargs))

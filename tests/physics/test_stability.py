@@ -19,7 +19,7 @@ from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_REFINEMENTS, AUX_RESI
 from snake_env.physics.config import max_stable_sim_dt
 from snake_env.envs.snake import SnakeEnv
 from snake_env.envs.vector import SnakeVectorEnv
-from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS as IDEAL  # ideal torque sources, unlimited grip
+from snake_env.physics.config import IDEAL_PHYSICS as IDEAL  # ideal torque sources, unlimited grip
 
 KWARG_NAMES = ("sim_dt", "joint_limit", "max_torque", "mass", "length", "inertia", "energy_tolerance",
                "max_refinements", "integrator", "paper_model", "frame_skip")
@@ -199,7 +199,9 @@ def test_refused_setting_names_the_argument_and_the_allowed_range():
                                     dict(actuator="xh430_w350")])
 def test_settings_rk4_cannot_step_at_the_default_sim_dt_run_in_substeps(kwargs):
     """sim_dt left at its default is divided into the fewest stable substeps; dt stays 0.04 s, and the
-    steps are those of the explicit sim_dt = 0.01 / r with frame_skip 4 r, bit for bit."""
+    steps are those of the explicit sim_dt = 0.01 / r with frame_skip 4 r, bit for bit (the no-slip wheels'
+    RK4 step; the sliding wheels': next test)."""
+    kwargs = {**kwargs, "wheel_model": "no_slip"}
     env = SnakeEnv(**kwargs)
     r = env.params.substeps
     bound = max_stable_sim_dt(env.params, env.max_torque)[0]
@@ -322,3 +324,24 @@ def test_refinement_stopping_a_rejected_attempt_early_accepts_the_same_step_bit_
             refined_past_first_level += r > 1
         q, u = q1, u1
     assert checked > 20 and refined_past_first_level > 10  # levels below the accepted one were rejected
+
+
+@pytest.mark.parametrize("kwargs", [dict(max_torque=100.0), dict(n_links=12, max_torque=20.0),
+                                    dict(length=0.05, mass=0.25, inertia=0.25 * 0.05 ** 2 / 12),
+                                    dict(actuator="xh430_w350")])
+def test_the_same_settings_run_on_the_default_sliding_wheels(kwargs):
+    """The settings above run on the default sliding wheels too: dt stays 0.04 s, the time stepping takes
+    twice RK4's substeps where RK4 needs them (physics.sliding_wheels.substeps_per_step), and the steps are
+    finite and keep the work-energy balance with friction's work."""
+    from snake_env.physics.sliding_wheels import EULER_SUBSTEP_FACTOR, SUBSTEP, substeps_per_step
+
+    env = SnakeEnv(**kwargs)
+    assert env.config.wheel_model == "sliding" and env.dt == 0.04
+    substeps = substeps_per_step(env.params)
+    assert substeps == 4 * max(round(0.01 / SUBSTEP), EULER_SUBSTEP_FACTOR * env.params.substeps)
+    rng = np.random.default_rng(3)
+    env.reset(seed=3)
+    for _ in range(100):
+        obs, _, _, _, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        assert np.all(np.isfinite(obs)) and not info["sim_failure"]
+        assert env._batch.aux[0, AUX_RESIDUAL] <= env.energy_tolerance

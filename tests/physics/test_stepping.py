@@ -8,7 +8,7 @@ from snake_env.dynamics import rk4_step
 from snake_env import physics
 from snake_env.envs import SnakeEnv
 from snake_env.physics import AUX_FAILED, AUX_KINETIC, AUX_WORK, AUX_X, AUX_Y
-from snake_env.physics.config import PREVIOUS_VERSION_PHYSICS as IDEAL  # ideal torque sources, unlimited grip
+from snake_env.physics.config import IDEAL_PHYSICS as IDEAL  # ideal torque sources, unlimited grip
 
 
 def _random_states(rng, n, batch):

@@ -23,8 +23,8 @@ def _models(n, friction, **kwargs):
     ``actuator`` is given (the scale multiplies the motor's output, so only for ideal sources is it a
     scale of the commands)."""
     kwargs.setdefault("actuator", "ideal")
-    _, params = PhysicsConfig(n_links=n, wheel_friction=friction, **kwargs).build()
-    _, plain = PhysicsConfig(n_links=n, **kwargs).build()
+    _, params = PhysicsConfig(wheel_model="no_slip", n_links=n, wheel_friction=friction, **kwargs).build()
+    _, plain = PhysicsConfig(wheel_model="no_slip", n_links=n, **kwargs).build()
     return params.kernel_model, plain.kernel_model
 
 
@@ -108,7 +108,7 @@ def test_lane_kernel_steps_as_the_per_snake_kernel_with_grip(rng):
 def test_work_energy_balance_holds_under_the_traction_limit(rng):
     """K(t1) - K(t0) = the work of every load, with the motors' work at the substeps' scales."""
     n = 5
-    snake, params = PhysicsConfig(n_links=n, wheel_friction=0.3, joint_limit=None, joint_damping=0.05).build()
+    snake, params = PhysicsConfig(wheel_model="no_slip", n_links=n, wheel_friction=0.3, joint_limit=None, joint_damping=0.05).build()
     model = params.kernel_model
     q, u = _random_state(rng, n)
     torques = rng.uniform(-1.0, 1.0, n - 1)
@@ -212,7 +212,7 @@ def test_slip_cost_is_the_wheels_excess_over_their_grip_in_link_weights(rng):
     from snake_env.envs import SnakeEnv
 
     kwargs = dict(n_links=5, wheel_friction=0.3, mass=[1.0, 0.5, 2.0, 1.0, 1.5])
-    costed, plain = SnakeEnv(slip_cost_weight=0.7, **kwargs), SnakeEnv(**kwargs)
+    costed, plain = SnakeEnv(wheel_model="no_slip", slip_cost_weight=0.7, **kwargs), SnakeEnv(wheel_model="no_slip", **kwargs)
     costed.reset(seed=0)
     plain.reset(seed=0)
     load = np.array(kwargs["mass"]) * 9.81
@@ -227,4 +227,4 @@ def test_slip_cost_is_the_wheels_excess_over_their_grip_in_link_weights(rng):
         seen += excess.sum()
     assert seen > 0.0  # bang-bang torques on a low-grip snake make the motion exceed the grip
     with pytest.raises(ValueError, match="slip_cost_weight needs wheel_friction"):
-        SnakeEnv(n_links=5, wheel_friction=None, slip_cost_weight=1.0)
+        SnakeEnv(wheel_model="no_slip", n_links=5, wheel_friction=None, slip_cost_weight=1.0)

@@ -15,7 +15,7 @@ from snake_env.physics.config import sliding
 
 @pytest.mark.parametrize("n_links", [3, 5, 12])
 def test_reported_forces_are_the_multipliers_of_eq_27(n_links):
-    env = SnakeEnv(n_links=n_links, wheel_friction=0.8, actuator="ideal")  # the torques: scale * commands
+    env = SnakeEnv(wheel_model="no_slip", n_links=n_links, wheel_friction=0.8, actuator="ideal")  # the torques: scale * commands
     model, limit = env.unwrapped.model, env.unwrapped.joint_limit
     env.reset(seed=1)
     rng = np.random.default_rng(1)
@@ -80,4 +80,4 @@ def test_step_reports_the_forces_of_their_own_sweep_on_every_path():
 def test_bad_friction_is_a_one_line_error():
     for value in (0.0, -1.0, float("inf")):
         with pytest.raises(ValueError, match="wheel_friction must be a finite number > 0"):
-            SnakeEnv(wheel_friction=value)
+            SnakeEnv(wheel_model="no_slip", wheel_friction=value)

@@ -14,6 +14,7 @@ import pytest
 
 from snake_env.train.evaluate import main
 from tests.newest_ids import newest_id
+from tests.train.conftest import ENV as RUN_ENV
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = newest_id("Snake3")
@@ -54,7 +55,8 @@ def test_matches_sb3_vecnormalize_evaluation_and_does_not_update_statistics(ppo_
     ours = evaluate_json(tmp_path, ppo_run, "--episodes", "1", "--seed", "11")
     assert stats_file.read_bytes() == stats_before
 
-    venv = VecNormalize.load(str(stats_file), DummyVecEnv([lambda: gym.make(ENV, max_episode_steps=50)]))
+    # the env the run was trained on (tests/train/conftest.py), which snake-eval reads from its config.yaml
+    venv = VecNormalize.load(str(stats_file), DummyVecEnv([lambda: gym.make(RUN_ENV, max_episode_steps=50)]))
     venv.training = False
     venv.norm_reward = False
     mean_before = venv.obs_rms.mean.copy()

@@ -300,7 +300,7 @@ def test_serpenoid_residual_on_a_task_starts_at_the_tasks_baseline(env_id, contr
     from snake_env.controllers import steering as path_following
     from snake_env.controllers.gaits import gait_for_links
 
-    params, speed = gait_for_links(5, previous_physics=True)
+    params, speed = gait_for_links(5, versions_back=2)
     baseline = getattr(path_following, controller_name)(params, 5, 1.0, 0.04, gait_speed=float(speed))
     residual = SerpenoidResidualAction(gym.make(env_id))
     assert type(residual.controller).__name__ == controller_name
@@ -318,7 +318,7 @@ def test_serpenoid_residual_on_the_reach_task_starts_at_goal_seeking_and_extends
     from snake_env.controllers.steering import GoalSeekingController
     from snake_env.controllers.gaits import gait_for_links
 
-    params, speed = gait_for_links(5, previous_physics=True)
+    params, speed = gait_for_links(5, versions_back=2)
     baseline = GoalSeekingController(params, 5, 1.0, 0.04, gait_speed=float(speed))
     residual = SerpenoidResidualAction(gym.make("snake_env/SnakeReach5-v1"))
     plain = gym.make("snake_env/SnakeReach5-v1")
@@ -509,7 +509,7 @@ def test_steering_residual_with_zero_action_is_the_tasks_baseline(env_id, n_link
     from snake_env.controllers.steering import make_baseline
     from snake_env.controllers.gaits import gait_for_links
 
-    params, speed = gait_for_links(n_links, previous_physics=True)  # the previous ids: their gaits
+    params, speed = gait_for_links(n_links, versions_back=2)  # the ideal-physics ids: their gaits
     plain = gym.make(env_id)
     task = plain.unwrapped.task
     baseline = make_baseline(task.baseline_controller, task.name, params, speed, n_links, 1.0, 0.04)
@@ -636,7 +636,7 @@ def test_steering_residual_on_the_straight_gait_reads_no_goal():
     for _ in range(80):
         info = env.step(np.zeros(2, np.float32))[4]
         speeds.append(math.hypot(info["x_velocity"], info["y_velocity"]))
-    assert np.mean(speeds[20:]) > 0.8 * gait_for_links(5, previous_physics=True)[1]
+    assert np.mean(speeds[20:]) > 0.8 * gait_for_links(5, versions_back=2)[1]
     with pytest.raises(ValueError, match=r"baseline must be one of \['task', 'gait'\], got 'goal'"):
         SteeringResidualAction(gym.make("snake_env/SnakeReach5-v1"), baseline="goal")
     with pytest.raises(ValueError, match="observe_mode needs a baseline with a hidden mode.*StraightGait"):
