@@ -25,6 +25,7 @@ from snake_env.tasks.base import (ACTUATOR_POWER_ROW, COMMON_STEP_INFO_KEYS, COM
 
 from snake_env import physics
 from snake_env.physics import AUX_FAILED, PhysicsConfig
+from snake_env.dynamics import sliding_step
 from snake_env.physics.batch import batch_physics
 from snake_env.physics.settings import number, split_kwargs
 
@@ -126,9 +127,11 @@ class SnakeBatch:
     """State (B rows) of snakes doing one task, stepped by one compiled call."""
 
     def __init__(self, task: Task, config: PhysicsConfig, num_envs: int):
-        physics.stepping.announce_compile()  # never a silent first-run wait
-        # the kernels only some steps need, in a second process beside this one's compile
-        physics.stepping.compile_in_background(unlimited_grip=config.wheel_friction is None)
+        sliding = config.wheel_model == "sliding"
+        # never a silent first-run wait: the notice if the first step's kernel is not cached yet
+        physics.stepping.announce_compile(sliding_step.advance_rows if sliding else None)
+        if not sliding:  # the no-slip kernels only some steps need, in a second process beside this one's compile
+            physics.stepping.compile_in_background(unlimited_grip=config.wheel_friction is None)
         # the first step's task kernels compile before its physics while that process is at work (_warm_up)
         self._warm_up_pending = physics.stepping.background_compile_running()
         self.task = task

@@ -1097,8 +1097,9 @@ def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out, scale) -> No
 
 
 # Said once per process on stderr before the first step compiles the kernels: measured 11-16 s from an
-# empty cache on the idle 2-core machine (docs/benchmarks.md, cold start); numba caches the result on disk.
-COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 10-15 s on a "
+# empty cache on the idle 2-core machine for the no-slip wheels, 17.9 s for the sliding ones (docs/benchmarks.md,
+# cold start); numba caches the result on disk.
+COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 10-20 s on a "
                   "2-core machine; cached afterwards)")
 _compile_announced = False
 
@@ -1118,10 +1119,12 @@ def kernels_cached() -> bool:
     return _cached(_step_lanes)
 
 
-def announce_compile() -> bool:
-    """Print :data:`COMPILE_NOTICE` to stderr once per process if the kernels are not cached yet; True if printed."""
+def announce_compile(kernel=None) -> bool:
+    """Print :data:`COMPILE_NOTICE` to stderr once per process if the kernels are not cached yet; True if printed.
+    ``kernel``: the compiled step the env's first step needs (default: the lane kernel of the no-slip wheels)."""
     global _compile_announced
-    if _compile_announced or _step_lanes.signatures or kernels_cached():
+    kernel = _step_lanes if kernel is None else kernel
+    if _compile_announced or kernel.signatures or _cached(kernel):
         return False
     _compile_announced = True
     print(COMPILE_NOTICE, file=sys.stderr, flush=True)
