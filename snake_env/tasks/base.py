@@ -293,7 +293,8 @@ class Task:
     slip_margin: float = setting(1.0, "fraction of mu m g", minimum=0.0, maximum=1.0,
                                  doc="the slip cost counts lateral force beyond this fraction of the grip, "
                                      "max(0, |lambda_k| - margin mu m_k g): below 1 it also charges wheels the "
-                                     "traction limit holds near their grip, where a real wheel slides")
+                                     "traction limit holds near their grip, where a real wheel slides; on sliding "
+                                     "wheels only a margin below 1 charges anything")
 
     name: ClassVar[str] = ""
     id_prefix: ClassVar[str] = ""

@@ -109,7 +109,9 @@ class ForwardTask(Task):
     `energy_cost_weight` * `actuator_power` (W), reported as `info["reward_energy"]`, and with
     `slip_cost_weight` > 0 it loses that weight times the wheels' lateral force beyond their grip,
     sum_k max(0, |lambda_k| - mu m_k g) / (m_k g), reported as `info["reward_slip"]`; with
-    `slip_margin` < 1, beyond that share of the grip instead.
+    `slip_margin` < 1, beyond that share of the grip instead. On the sliding wheels (v4) a wheel's
+    force never exceeds its grip (a sliding wheel's is its friction, mu m_k g), so only a margin
+    below 1 charges anything: the sliding wheels and the gripping ones pushed beyond the margin.
 
     ## Starting State
     theta_k ~ U(-s, s) (rad) for every link, V_1 ~ U(-s, s) (m/s),
