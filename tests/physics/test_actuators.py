@@ -43,52 +43,33 @@ def test_back_emf_braking_clips_to_the_limit_first_and_differs_only_past_the_ove
         assert np.all(np.abs(capped) <= limit) and np.all(np.abs(braking[past]) > limit)
 
 
+@pytest.mark.parametrize("n", [3, 8])
 @pytest.mark.parametrize("braking", [False, True])
-def test_the_compiled_motor_and_the_sliding_step_brake_as_the_reference(rng, braking):
-    """The RK4 sweep and the sliding wheels' joint torques apply the motor of the reference, with and without
-    back-EMF braking, at joint rates up to 4 omega_0 (past the overlap)."""
+def test_compiled_sweep_applies_the_motor_to_the_command(rng, n, braking):
+    """derivatives() with a motor equals the ideal sweep fed the motor's torques (phidot from eq. 7), with and
+    without back-EMF braking, at joint rates up to several omega_0 (past the overlap of band and limit); the
+    sliding wheels' joint torques apply the same motor."""
     from snake_env.dynamics import sliding_step
 
-    n = 6
     model = SnakeModel(n, joint_damping=0.05, wheel_damping=0.1)
     params = model.parameters()
-    motor = compiled.kernel_model(*params, 0.0, 0.0, 0.0, 1.2, 1.0 / 2.5, 1.2, back_emf_braking=braking)
+    motor = compiled.kernel_model(*params, 0.0, 0.0, 0.0, 1.2, 1.0 / 2.5, 1.5, back_emf_braking=braking)
     ideal = compiled.kernel_model(*params)
     for _ in range(20):
         q = np.r_[rng.uniform(-1, 1, n), 0.0, 0.0]
         u = rng.normal(size=2) * 8
         command = rng.uniform(-3, 3, n - 1)
         _, omega = model.link_velocities(q, u)
-        phidot = np.diff(omega)
-        delivered = motor_torque_reference(command, phidot, 1.2, 2.5, 1.2, braking=braking)
-        dq, du, dq_ref, du_ref = np.empty(n + 2), np.empty(2), np.empty(n + 2), np.empty(2)
-        compiled.derivatives(motor, q, u, command, dq, du)
-        compiled.derivatives(ideal, q, u, delivered, dq_ref, du_ref)
-        np.testing.assert_allclose(du, du_ref, rtol=1e-12, atol=1e-12)
-        out, motor_share = np.empty(n - 1), np.empty(n - 1)
-        sliding_step.joint_torques(command, np.zeros(n - 1), phidot, np.zeros(n - 1), 1.2, 1.0 / 2.5, 1.2,
-                                   1.0 if braking else 0.0, 0.0, 0.0, 0.0, 0.0, out, motor_share)
-        np.testing.assert_allclose(motor_share, delivered, rtol=1e-12, atol=1e-12)
-
-
-@pytest.mark.parametrize("n", [3, 8])
-def test_compiled_sweep_applies_the_motor_to_the_command(rng, n):
-    """derivatives() with a motor equals the ideal sweep fed the motor's torques (phidot from eq. 7)."""
-    model = SnakeModel(n, joint_damping=0.05, wheel_damping=0.1)
-    params = model.parameters()
-    motor = compiled.kernel_model(*params, 0.0, 0.0, 0.0, 1.2, 1.0 / 2.5, 1.5)
-    ideal = compiled.kernel_model(*params)
-    for _ in range(20):
-        q = np.r_[rng.uniform(-1, 1, n), 0.0, 0.0]
-        u = rng.normal(size=2) * 2
-        command = rng.uniform(-3, 3, n - 1)
-        _, omega = model.link_velocities(q, u)
-        delivered = motor_torque_reference(command, np.diff(omega), 1.2, 2.5, 1.5)
+        delivered = motor_torque_reference(command, np.diff(omega), 1.2, 2.5, 1.5, braking=braking)
         dq, du, dq_ref, du_ref = np.empty(n + 2), np.empty(2), np.empty(n + 2), np.empty(2)
         power = compiled.derivatives(motor, q, u, command, dq, du)
         power_ref = compiled.derivatives(ideal, q, u, delivered, dq_ref, du_ref)
         np.testing.assert_allclose(du, du_ref, rtol=1e-12, atol=1e-12)
         assert power == pytest.approx(power_ref, rel=1e-12, abs=1e-12)
+        torque, motor_share = np.empty(n - 1), np.empty(n - 1)
+        sliding_step.joint_torques(command, np.zeros(n - 1), np.diff(omega), np.zeros(n - 1), 1.2, 1.0 / 2.5, 1.5,
+                                   1.0 if braking else 0.0, 0.0, 0.0, 0.0, 0.0, torque, motor_share)
+        np.testing.assert_allclose(motor_share, delivered, rtol=1e-12, atol=1e-12)
 
 
 def test_ideal_actuator_is_the_v2_torque_source_bit_for_bit():
