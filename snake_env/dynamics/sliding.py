@@ -204,7 +204,8 @@ class SlidingWheels:
                 G, g, float(np.sum(self.mass)), np.ascontiguousarray(self.inertia), np.ascontiguousarray(self.lever),
                 np.ascontiguousarray(self.grip), np.ascontiguousarray(c_joint, dtype=np.float64),
                 np.ascontiguousarray(c_wheel, dtype=np.float64), stall, 0.0 if math.isinf(no_load) else 1.0 / no_load,
-                t_max, 1.0 if self.back_emf_braking else 0.0, limit, k_limit, c_limit, compiled.inverse_room(limit) if limit > 0.0 else 0.0,
+                t_max, 1.0 if self.back_emf_braking else 0.0, limit, k_limit, c_limit,
+                compiled.inverse_room(limit) if limit > 0.0 else 0.0,
                 np.ascontiguousarray(self.rotor), np.ascontiguousarray(self.mass, dtype=np.float64))
         return self._constants
 

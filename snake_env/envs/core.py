@@ -24,8 +24,8 @@ from snake_env.tasks.base import (ACTUATOR_POWER_ROW, COMMON_STEP_INFO_KEYS, COM
                                   bind_common_step_values, common_reset_info, common_step_values)
 
 from snake_env import physics
-from snake_env.physics import AUX_FAILED, PhysicsConfig
 from snake_env.dynamics import sliding_step
+from snake_env.physics import AUX_FAILED, PhysicsConfig
 from snake_env.physics.batch import batch_physics
 from snake_env.physics.settings import number, split_kwargs
 

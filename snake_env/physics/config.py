@@ -79,6 +79,8 @@ DEFAULT_WHEEL_FRICTION = 0.8
 # measured under bang-bang torques on Snake5 and Snake12), while the motion's own excess starts at ~3e-3
 # of the grip (the smallest seen there): 1e-9 separates the two and counts no held wheel as sliding.
 SLIP_TOLERANCE = 1e-9
+
+
 class _DefaultWheelModel(str):
     """The default wheel_model's type while PhysicsConfig checks its fields: a str that tells it the model was
     not given, so that unlimited grip (wheel_friction=None) may make it "no_slip" (an explicit "sliding" with

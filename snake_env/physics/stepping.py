@@ -1113,12 +1113,6 @@ def _cached(dispatcher) -> bool:
         return True
 
 
-def kernels_cached() -> bool:
-    """Whether numba's on-disk cache holds compiled code of the current step kernel (the lane kernel every
-    batch steps with) for this source file; True when it cannot tell."""
-    return _cached(_step_lanes)
-
-
 def announce_compile(kernel=None) -> bool:
     """Print :data:`COMPILE_NOTICE` to stderr once per process if the kernels are not cached yet; True if printed.
     ``kernel``: the compiled step the env's first step needs (default: the lane kernel of the no-slip wheels)."""
