@@ -8,10 +8,14 @@ statistics, each file atomically.
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
+import numpy as np
+
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
 from snake_env.train import atomic
@@ -384,3 +388,125 @@ class SlipCostSchedule(BaseCallback):
 
     def _on_training_end(self) -> None:
         self._set(self.final_weight)  # the configured weight, as the evaluation and the shipped env have it
+
+
+class SlipCostLagrangian(BaseCallback):
+    """A constraint on sliding instead of a fixed price: the training envs' slip-cost weight is a Lagrange
+    multiplier that grows while the policy's wheels slide on more than ``target_share`` of wheel-steps and
+    shrinks (to 0 at least) while they slide on fewer, the dual ascent of constrained RL (PPO-Lagrangian,
+    Ray et al. 2019, "Benchmarking Safe Exploration in Deep RL"; the proportional term is the PI form of
+    Stooke et al. 2020, "Responsive Safety in RL by PID Lagrangian Methods").
+
+    The measured share is ``info["wheel_slip"]`` (the wheels that slide, on the sliding wheels; outside the
+    friction cone, on the no-slip ones) over every wheel and step of the last rollout (PPO) or of the last
+    ``update_every`` steps (SAC: every env step counts once). After each, with e = share - target_share,
+    ``multiplier = clip(multiplier + gain * e, 0, max_weight)`` and the training envs' weight is
+    ``clip(multiplier + proportional * e, 0, max_weight)``; the cost it prices is the env's slip cost
+    (``slip_cost_weight`` per m g of lateral force beyond ``slip_margin`` of the grip, docs/env.md), which
+    rises before a wheel slides. The multiplier is an attribute of the model (``slip_cost_multiplier``), so
+    it is saved with every checkpoint and a resumed run goes on from it. The evaluation env keeps the
+    configured ``slip_cost_weight``: it scores the best-model choice at that fixed price.
+
+    Random torques slide a snake's wheels too (about 23 % of wheel-steps on Snake5-v4 at the entries' initial
+    action noise): a constraint from the first step prices moving at all before a gait exists, and the
+    policy learns to stand still. So the multiplier stays at ``initial_weight`` until ``start_fraction`` of the
+    run (training progress, as :class:`SlipCostSchedule`), and the dual steps start there.
+
+    Args:
+        target_share: the share of wheel-steps allowed to slide, in [0, 1).
+        start_fraction: training progress at which the dual steps start, in [0, 1).
+        gain: multiplier change per unit of share above the target, per update (> 0).
+        proportional: the weight's extra per unit of share above the target (>= 0).
+        initial_weight: the multiplier at the start of a new run (>= 0).
+        max_weight: the upper bound of the multiplier and the weight (> 0).
+        update_every: env steps between updates for off-policy algorithms (PPO updates after each rollout).
+    """
+
+    def __init__(self, target_share: float = 0.03, start_fraction: float = 0.3, gain: float = 1.0,
+                 proportional: float = 0.0,
+                 initial_weight: float = 0.0, max_weight: float = 20.0, update_every: int = 8192,
+                 verbose: int = 0):
+        super().__init__(verbose)
+        checks = (("target_share", target_share, lambda v: 0.0 <= v < 1.0, "a number in [0, 1)"),
+                  ("start_fraction", start_fraction, lambda v: 0.0 <= v < 1.0, "a number in [0, 1)"),
+                  ("gain", gain, lambda v: v > 0.0, "a number > 0"),
+                  ("proportional", proportional, lambda v: v >= 0.0, "a number >= 0"),
+                  ("initial_weight", initial_weight, lambda v: v >= 0.0, "a number >= 0"),
+                  ("max_weight", max_weight, lambda v: v > 0.0, "a number > 0"))
+        for name, value, ok, allowed in checks:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or not ok(value):
+                raise ValueError(f"SlipCostLagrangian {name} must be {allowed}, got {value!r}")
+        if isinstance(update_every, bool) or not isinstance(update_every, int) or update_every < 1:
+            raise ValueError(f"SlipCostLagrangian update_every must be an integer >= 1, got {update_every!r}")
+        if initial_weight > max_weight:
+            raise ValueError(f"SlipCostLagrangian initial_weight must be <= max_weight ({max_weight!r}), "
+                             f"got {initial_weight!r}")
+        self.target_share = float(target_share)
+        self.start_fraction = float(start_fraction)
+        self.gain = float(gain)
+        self.proportional = float(proportional)
+        self.initial_weight = float(initial_weight)
+        self.max_weight = float(max_weight)
+        self.update_every = update_every
+        self.configured_weight = None  # the env's slip_cost_weight: the evaluation's, restored at the end
+        self.on_policy = True
+        self.multiplier = None
+        self.weight = None
+        self._slid = 0  # sliding wheel-steps since the last update
+        self._wheel_steps = 0
+        self._steps = 0  # vector steps since the last update (off-policy)
+
+    def update(self, share: float) -> float:
+        """One dual step on the measured sliding share; returns the training envs' new weight."""
+        error = share - self.target_share
+        self.multiplier = min(max(self.multiplier + self.gain * error, 0.0), self.max_weight)
+        return min(max(self.multiplier + self.proportional * error, 0.0), self.max_weight)
+
+    def _set(self, weight: float) -> None:
+        self.training_env.env_method("set_slip_cost_weight", weight)
+        self.weight = weight
+
+    def _on_training_start(self) -> None:
+        weights = set(self.training_env.get_attr("slip_cost_weight"))
+        if len(weights) != 1 or not next(iter(weights)) > 0.0:
+            raise ValueError(f"SlipCostLagrangian needs env_kwargs slip_cost_weight > 0 (the evaluation's "
+                             f"weight), got {sorted(weights)}")
+        self.configured_weight = float(next(iter(weights)))
+        self.on_policy = isinstance(self.model, OnPolicyAlgorithm)
+        # a resumed run's multiplier came back with the model (an attribute SB3 saves)
+        self.multiplier = float(getattr(self.model, "slip_cost_multiplier", self.initial_weight))
+        self._set(self.multiplier)
+        self._slid = self._wheel_steps = self._steps = 0
+
+    def _on_step(self) -> bool:
+        for info in self.locals["infos"]:
+            slip = info.get("wheel_slip")
+            if slip is None:
+                raise ValueError("SlipCostLagrangian needs info['wheel_slip'] (an env with wheel_friction)")
+            self._slid += int(np.count_nonzero(slip))
+            self._wheel_steps += len(slip)
+        self._steps += 1
+        if not self.on_policy and self._steps * self.training_env.num_envs >= self.update_every:
+            self._update()
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self.on_policy:
+            self._update()
+
+    def _update(self) -> None:
+        if not self._wheel_steps:
+            return
+        share = self._slid / self._wheel_steps
+        total = max(int(getattr(self.model, "_total_timesteps", 0)), 1)
+        if self.model.num_timesteps / total >= self.start_fraction:
+            self._set(self.update(share))
+        self.model.slip_cost_multiplier = self.multiplier
+        self.logger.record("train/slip_share", share)
+        self.logger.record("train/slip_cost_multiplier", self.multiplier)
+        self.logger.record("train/slip_cost_weight", self.weight)
+        self._slid = self._wheel_steps = self._steps = 0
+
+    def _on_training_end(self) -> None:
+        self._set(self.configured_weight)  # as the evaluation and the shipped env have it

@@ -341,14 +341,18 @@ def validate(config: dict) -> dict:
     if isinstance(config.get("replay_buffer_kwargs"), str):
         parse_python_dict(config["replay_buffer_kwargs"], "replay_buffer_kwargs")
     if config["callback"] is not None:
-        from snake_env.train.callbacks import ResidualBurnIn, SlipCostSchedule
+        from snake_env.train.callbacks import ResidualBurnIn, SlipCostLagrangian, SlipCostSchedule
 
         callbacks = make_callbacks(config)
-        if any(isinstance(c, SlipCostSchedule) for c in callbacks):
-            weight = config["env_kwargs"].get("slip_cost_weight", 0.0)
-            if isinstance(weight, bool) or not isinstance(weight, numbers.Real) or not weight > 0:
-                raise ConfigError(f"callback SlipCostSchedule needs env_kwargs slip_cost_weight > 0 (the weight "
-                                  f"it ramps to), got {weight!r}")
+        for kind, role in ((SlipCostSchedule, "the weight it ramps to"), (SlipCostLagrangian, "the evaluation's weight")):
+            if any(isinstance(c, kind) for c in callbacks):
+                weight = config["env_kwargs"].get("slip_cost_weight", 0.0)
+                if isinstance(weight, bool) or not isinstance(weight, numbers.Real) or not weight > 0:
+                    raise ConfigError(f"callback {kind.__name__} needs env_kwargs slip_cost_weight > 0 ({role}), "
+                                      f"got {weight!r}")
+        if sum(isinstance(c, (SlipCostSchedule, SlipCostLagrangian)) for c in callbacks) > 1:
+            raise ConfigError("callback: SlipCostSchedule and SlipCostLagrangian both set the slip cost's weight; "
+                              "give one of them")
 
         # SAC's default learning_starts is 100
         burn_ins = [c for c in callbacks if isinstance(c, ResidualBurnIn)]
