@@ -153,3 +153,26 @@ def test_dual_steps_wait_for_start_fraction():
     assert np.all(weights[:4] == 0.0)
     np.testing.assert_allclose(weights[4:], np.cumsum(2.0 * shares[3:-1]), rtol=1e-12)
     assert weights[-1] > 0.0
+
+
+def test_off_policy_updates_every_update_every_env_steps():
+    from snake_env.train.envs import make_vec_env
+    from snake_env.train.train import build_model
+
+    config = cfg.build_config("sac", ENV, overrides=[
+        "env_kwargs.slip_cost_weight=4.0", "env_kwargs.max_episode_steps=50", "learning_starts=64",
+        "buffer_size=2000", "batch_size=32", "policy_kwargs.net_arch=[8]"], n_envs=2)
+    config["callback"] = [{NAME: {"target_share": 0.0, "gain": 2.0, "start_fraction": 0.0, "update_every": 40}}]
+    config = cfg.validate(config)
+    venv = make_vec_env(config, 2, 0)
+    model = build_model(config, venv, 0)
+    lagrangian, = cfg.make_callbacks(config)
+    record = _Record(make_vec_env(config, 1, 10_000))
+    model.learn(total_timesteps=200, callback=CallbackList([lagrangian, record]))
+    weights = np.array(record.weights)  # 100 vector steps of 2 envs: an update after every 20th
+    shares = np.array(record.shares)
+    block_shares = shares.reshape(5, 20).mean(axis=1)
+    for i, weight in enumerate(weights):  # the record sees the update made at its own step
+        done = (i + 1) // 20
+        assert weight == pytest.approx(min(2.0 * block_shares[:done].sum(), 20.0), rel=1e-12, abs=1e-15)
+    assert weights[-1] > 0.0
