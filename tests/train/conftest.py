@@ -28,3 +28,16 @@ def ppo_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("runs") / "ppo_run"
     assert main(train_args("ppo", run_dir, 256)) == 0
     return run_dir
+
+
+def assert_callback_config_error(env_id: str, callback, pattern: str, overrides=(), config_path=None) -> None:
+    """``callback`` (the config's ``callback`` entry) on a PPO config of ``env_id`` is refused by
+    ``validate`` with a one-line ConfigError matching ``pattern``."""
+    from snake_env.train import config as cfg
+
+    config = cfg.build_config("ppo", env_id, config_path=config_path, overrides=list(overrides))
+    config["callback"] = callback
+    with pytest.raises(cfg.ConfigError, match=pattern) as info:
+        cfg.validate(config)
+    assert "\n" not in str(info.value)
+

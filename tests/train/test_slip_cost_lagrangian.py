@@ -14,7 +14,7 @@ import snake_env  # noqa: F401  (registers the ids)
 from snake_env.train import config as cfg
 from snake_env.train.callbacks import SlipCostLagrangian
 
-from .conftest import TINY
+from .conftest import TINY, assert_callback_config_error
 
 ENV = "snake_env/Snake5-v4"  # the default sliding wheels
 NAME = "snake_env.train.callbacks.SlipCostLagrangian"
@@ -107,25 +107,16 @@ def test_weight_falls_to_zero_while_wheels_slide_less_than_the_target(tmp_path):
     ({"price": 1.0}, "unexpected keyword"),
 ])
 def test_bad_arguments_are_one_line_config_errors(kwargs, pattern):
-    config = cfg.build_config("ppo", ENV, overrides=["env_kwargs.slip_cost_weight=1.0"])
-    config["callback"] = [{NAME: kwargs}]
-    with pytest.raises(cfg.ConfigError, match=pattern) as info:
-        cfg.validate(config)
-    assert "\n" not in str(info.value)
+    assert_callback_config_error(ENV, [{NAME: kwargs}], pattern, ["env_kwargs.slip_cost_weight=1.0"])
 
 
 def test_needs_a_configured_weight_and_excludes_the_schedule(tmp_path):
     entry = tmp_path / "ppo.yaml"
     entry.write_text(f"{ENV}:\n  n_envs: 2\n")
-    config = cfg.build_config("ppo", ENV, config_path=entry)
-    config["callback"] = [NAME]
-    with pytest.raises(cfg.ConfigError, match="SlipCostLagrangian needs env_kwargs slip_cost_weight > 0"):
-        cfg.validate(config)
-    config = cfg.build_config("ppo", ENV, config_path=entry, overrides=["env_kwargs.slip_cost_weight=1.0"])
-    config["callback"] = [NAME, "snake_env.train.callbacks.SlipCostSchedule"]
-    with pytest.raises(cfg.ConfigError, match="give one of them") as info:
-        cfg.validate(config)
-    assert "\n" not in str(info.value)
+    assert_callback_config_error(ENV, [NAME], "SlipCostLagrangian needs env_kwargs slip_cost_weight > 0",
+                                 config_path=entry)
+    assert_callback_config_error(ENV, [NAME, "snake_env.train.callbacks.SlipCostSchedule"], "give one of them",
+                                 ["env_kwargs.slip_cost_weight=1.0"], config_path=entry)
 
 
 def test_snake_train_end_to_end_logs_the_share_and_the_weight(tmp_path):

@@ -16,7 +16,7 @@ import snake_env  # noqa: F401  (registers the ids)
 from snake_env.train import config as cfg
 from snake_env.train.callbacks import SlipCostSchedule
 
-from .conftest import TINY
+from .conftest import TINY, assert_callback_config_error
 
 ENV = "snake_env/Snake3-v3"  # wheels with finite grip
 NAME = "snake_env.train.callbacks.SlipCostSchedule"
@@ -134,22 +134,15 @@ def test_training_envs_follow_the_schedule_and_the_eval_env_keeps_the_final_weig
     ({"ramp": 0.5}, "unexpected keyword"),
 ])
 def test_bad_schedule_arguments_are_one_line_config_errors(kwargs, pattern):
-    config = cfg.build_config("ppo", ENV, overrides=["env_kwargs.slip_cost_weight=1.0"])
-    config["callback"] = [{NAME: kwargs}]
-    with pytest.raises(cfg.ConfigError, match=pattern) as info:
-        cfg.validate(config)
-    assert "\n" not in str(info.value)
+    assert_callback_config_error(ENV, [{NAME: kwargs}], pattern, ["env_kwargs.slip_cost_weight=1.0"])
 
 
 @pytest.mark.parametrize("override", [[], ["env_kwargs.slip_cost_weight=0"]])
 def test_schedule_needs_a_configured_weight(override, tmp_path):
     entry = tmp_path / "ppo.yaml"  # an entry without the cost, whatever the shipped entries hold
     entry.write_text(f"{ENV}:\n  n_envs: 2\n")
-    config = cfg.build_config("ppo", ENV, config_path=entry, overrides=override)
-    config["callback"] = [NAME]
-    with pytest.raises(cfg.ConfigError, match="SlipCostSchedule needs env_kwargs slip_cost_weight > 0") as info:
-        cfg.validate(config)
-    assert "\n" not in str(info.value)
+    assert_callback_config_error(ENV, [NAME], "SlipCostSchedule needs env_kwargs slip_cost_weight > 0", override,
+                                 config_path=entry)
 
 
 def test_snake_train_end_to_end_logs_the_ramp(tmp_path):
