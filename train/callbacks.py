@@ -325,6 +325,15 @@ class CriticWarmUp(BaseCallback):
         self._set_frozen(False)  # a saved or resumed model trains as usual
 
 
+def configured_slip_cost_weight(venv, callback: str, role: str) -> float:
+    """The training envs' configured ``slip_cost_weight`` (one value, > 0), which ``callback`` needs as
+    ``role``; a one-line ValueError otherwise."""
+    weights = set(venv.get_attr("slip_cost_weight"))
+    if len(weights) != 1 or not next(iter(weights)) > 0.0:
+        raise ValueError(f"{callback} needs env_kwargs slip_cost_weight > 0 ({role}), got {sorted(weights)}")
+    return float(next(iter(weights)))
+
+
 class SlipCostSchedule(BaseCallback):
     """A curriculum on the slip cost (``env_kwargs: {slip_cost_weight: W}``, docs/env.md): the gait is
     learned first with a small cost (or none), then the cost is ramped up to the configured weight W, a
@@ -373,11 +382,7 @@ class SlipCostSchedule(BaseCallback):
         self.logger.record("train/slip_cost_weight", weight)
 
     def _on_training_start(self) -> None:
-        weights = set(self.training_env.get_attr("slip_cost_weight"))
-        if len(weights) != 1 or not next(iter(weights)) > 0.0:
-            raise ValueError(f"SlipCostSchedule needs env_kwargs slip_cost_weight > 0 (the weight it ramps to), "
-                             f"got {sorted(weights)}")
-        self.final_weight = float(next(iter(weights)))
+        self.final_weight = configured_slip_cost_weight(self.training_env, "SlipCostSchedule", "the weight it ramps to")
         self.weight = self.final_weight
         self._on_step()
 
@@ -468,11 +473,8 @@ class SlipCostLagrangian(BaseCallback):
         self.weight = weight
 
     def _on_training_start(self) -> None:
-        weights = set(self.training_env.get_attr("slip_cost_weight"))
-        if len(weights) != 1 or not next(iter(weights)) > 0.0:
-            raise ValueError(f"SlipCostLagrangian needs env_kwargs slip_cost_weight > 0 (the evaluation's "
-                             f"weight), got {sorted(weights)}")
-        self.configured_weight = float(next(iter(weights)))
+        self.configured_weight = configured_slip_cost_weight(self.training_env, "SlipCostLagrangian",
+                                                             "the evaluation's weight")
         self.on_policy = isinstance(self.model, OnPolicyAlgorithm)
         # a resumed run's multiplier came back with the model (an attribute SB3 saves)
         self.multiplier = float(getattr(self.model, "slip_cost_multiplier", self.initial_weight))
