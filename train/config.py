@@ -344,7 +344,8 @@ def validate(config: dict) -> dict:
         from snake_env.train.callbacks import ResidualBurnIn, SlipCostLagrangian, SlipCostSchedule
 
         callbacks = make_callbacks(config)
-        for kind, role in ((SlipCostSchedule, "the weight it ramps to"), (SlipCostLagrangian, "the evaluation's weight")):
+        roles = ((SlipCostSchedule, "the weight it ramps to"), (SlipCostLagrangian, "the evaluation's weight"))
+        for kind, role in roles:
             if any(isinstance(c, kind) for c in callbacks):
                 weight = config["env_kwargs"].get("slip_cost_weight", 0.0)
                 if isinstance(weight, bool) or not isinstance(weight, numbers.Real) or not weight > 0:
