@@ -325,13 +325,20 @@ class CriticWarmUp(BaseCallback):
         self._set_frozen(False)  # a saved or resumed model trains as usual
 
 
-def configured_slip_cost_weight(venv, callback: str, role: str) -> float:
-    """The training envs' configured ``slip_cost_weight`` (one value, > 0), which ``callback`` needs as
-    ``role``; a one-line ValueError otherwise."""
-    weights = set(venv.get_attr("slip_cost_weight"))
+def configured_slip_cost_weight(callback: BaseCallback) -> float:
+    """The training envs' configured ``slip_cost_weight`` (one value, > 0), which a slip-cost callback needs
+    (as its ``WEIGHT_ROLE``); a one-line ValueError otherwise."""
+    weights = set(callback.training_env.get_attr("slip_cost_weight"))
     if len(weights) != 1 or not next(iter(weights)) > 0.0:
-        raise ValueError(f"{callback} needs env_kwargs slip_cost_weight > 0 ({role}), got {sorted(weights)}")
+        raise ValueError(f"{type(callback).__name__} needs env_kwargs slip_cost_weight > 0 ({callback.WEIGHT_ROLE}), "
+                         f"got {sorted(weights)}")
     return float(next(iter(weights)))
+
+
+def training_progress(model) -> float:
+    """``num_timesteps`` over the run's total (a resumed run included), in [0, 1]."""
+    total = max(int(getattr(model, "_total_timesteps", 0)), 1)
+    return min(model.num_timesteps / total, 1.0)
 
 
 class SlipCostSchedule(BaseCallback):
@@ -354,6 +361,8 @@ class SlipCostSchedule(BaseCallback):
         end_fraction: progress at which the weight reaches W, in (start_fraction, 1].
         floor: the weight before the ramp as a fraction of W, in [0, 1] (0: no cost before it).
     """
+
+    WEIGHT_ROLE = "the weight it ramps to"  # what the configured slip_cost_weight is to it
 
     def __init__(self, start_fraction: float = 0.4, end_fraction: float = 1.0, floor: float = 0.0,
                  verbose: int = 0):
@@ -382,13 +391,12 @@ class SlipCostSchedule(BaseCallback):
         self.logger.record("train/slip_cost_weight", weight)
 
     def _on_training_start(self) -> None:
-        self.final_weight = configured_slip_cost_weight(self.training_env, "SlipCostSchedule", "the weight it ramps to")
+        self.final_weight = configured_slip_cost_weight(self)
         self.weight = self.final_weight
         self._on_step()
 
     def _on_step(self) -> bool:
-        total = max(int(getattr(self.model, "_total_timesteps", 0)), 1)
-        self._set(self.weight_at(min(self.model.num_timesteps / total, 1.0)))
+        self._set(self.weight_at(training_progress(self.model)))
         return True
 
     def _on_training_end(self) -> None:
@@ -426,6 +434,8 @@ class SlipCostLagrangian(BaseCallback):
         max_weight: the upper bound of the multiplier and the weight (> 0).
         update_every: env steps between updates for off-policy algorithms (PPO updates after each rollout).
     """
+
+    WEIGHT_ROLE = "the evaluation's weight"
 
     def __init__(self, target_share: float = 0.03, start_fraction: float = 0.3, gain: float = 1.0,
                  proportional: float = 0.0,
@@ -473,8 +483,7 @@ class SlipCostLagrangian(BaseCallback):
         self.weight = weight
 
     def _on_training_start(self) -> None:
-        self.configured_weight = configured_slip_cost_weight(self.training_env, "SlipCostLagrangian",
-                                                             "the evaluation's weight")
+        self.configured_weight = configured_slip_cost_weight(self)
         self.on_policy = isinstance(self.model, OnPolicyAlgorithm)
         # a resumed run's multiplier came back with the model (an attribute SB3 saves)
         self.multiplier = float(getattr(self.model, "slip_cost_multiplier", self.initial_weight))
@@ -501,8 +510,7 @@ class SlipCostLagrangian(BaseCallback):
         if not self._wheel_steps:
             return
         share = self._slid / self._wheel_steps
-        total = max(int(getattr(self.model, "_total_timesteps", 0)), 1)
-        if self.model.num_timesteps / total >= self.start_fraction:
+        if training_progress(self.model) >= self.start_fraction:
             self._set(self.update(share))
         self.model.slip_cost_multiplier = self.multiplier
         self.logger.record("train/slip_share", share)

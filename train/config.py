@@ -344,13 +344,12 @@ def validate(config: dict) -> dict:
         from snake_env.train.callbacks import ResidualBurnIn, SlipCostLagrangian, SlipCostSchedule
 
         callbacks = make_callbacks(config)
-        roles = ((SlipCostSchedule, "the weight it ramps to"), (SlipCostLagrangian, "the evaluation's weight"))
-        for kind, role in roles:
+        for kind in (SlipCostSchedule, SlipCostLagrangian):
             if any(isinstance(c, kind) for c in callbacks):
                 weight = config["env_kwargs"].get("slip_cost_weight", 0.0)
                 if isinstance(weight, bool) or not isinstance(weight, numbers.Real) or not weight > 0:
-                    raise ConfigError(f"callback {kind.__name__} needs env_kwargs slip_cost_weight > 0 ({role}), "
-                                      f"got {weight!r}")
+                    raise ConfigError(f"callback {kind.__name__} needs env_kwargs slip_cost_weight > 0 "
+                                      f"({kind.WEIGHT_ROLE}), got {weight!r}")
         if sum(isinstance(c, (SlipCostSchedule, SlipCostLagrangian)) for c in callbacks) > 1:
             raise ConfigError("callback: SlipCostSchedule and SlipCostLagrangian both set the slip cost's weight; "
                               "give one of them")
