@@ -131,9 +131,8 @@ class SnakeBatch:
         # never a silent first-run wait: the notice if the first step's kernel is not cached yet
         physics.stepping.announce_compile(sliding_step.advance_rows if sliding else None)
         if not sliding:  # the no-slip kernels only some steps need, in a second process beside this one's compile
+            # (the sliding physics starts its own: physics.sliding_wheels)
             physics.stepping.compile_in_background(unlimited_grip=config.wheel_friction is None)
-        # the first step's task kernels compile before its physics while that process is at work (_warm_up)
-        self._warm_up_pending = physics.stepping.background_compile_running()
         self.task = task
         self.config = config
         self.model, self.params = config.build()
@@ -155,7 +154,9 @@ class SnakeBatch:
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
         # one compiled call, a motor response in time, or a robot per row (randomize): physics.batch
-        self.physics = batch_physics(config, self.params, B)
+        self.physics = batch_physics(config, self.params, B)  # (the sliding physics may start its compile there)
+        # the first step's task kernels compile before its physics while that process is at work (_warm_up)
+        self._warm_up_pending = physics.stepping.background_compile_running()
         self.grip, self.wheel_load = self.physics.grip, self.physics.wheel_load
         # the grips (N) of every row for the compiled slip test: a randomized batch's own (B, n) array, which
         # its resets redraw in place, or one robot's (n,) copied to every row

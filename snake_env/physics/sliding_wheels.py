@@ -30,6 +30,7 @@ from numba import njit
 from snake_env.dynamics import sliding_step
 from snake_env.dynamics.lagrange import consistent_qdot
 
+from . import stepping
 from .sliding_reference import sliding_wheels
 from .stepping import (AUX_FAILED, AUX_KINETIC, AUX_MOTOR_ENERGY, AUX_REFINEMENTS, AUX_RESIDUAL, AUX_VX, AUX_VY,
                        AUX_WORK, AUX_X, AUX_Y, FAIL_ENERGY, FAIL_FOLD, FAIL_NONFINITE, FAIL_RUNAWAY, FOLD_ANGLE,
@@ -62,6 +63,10 @@ class SlidingWheelPhysics:
         self.model = wheels.model
         self.constants = wheels.compiled_constants()
         self.method = sliding_step.solve_method(wheels.rotor)  # the friction solve (sliding_step.advance)
+        # its row kernel, about half of a first step's compile, in a second process while this one compiles
+        # the reset, observation, task and bookkeeping kernels (step waits for it before its first call)
+        kernel = sliding_step.ADVANCE_ROWS[self.method]
+        stepping.compile_in_background(sliding_kernel=getattr(kernel, "func", kernel), sliding_method=self.method)
         self.grip = config.grip()
         self.wheel_load = config.wheel_load()
         self.draws: dict[str, np.ndarray] = {}
@@ -106,6 +111,9 @@ class SlidingWheelPhysics:
         B, n = q.shape[0], q.shape[1] - 2
         params = self.params
         dt = params.dt
+        if stepping.background_compile_running():  # the first step of a process whose row kernel compiles there
+            self._compile_bookkeeping(q, u, obs, aux)
+            stepping.await_background_compile()
         q0, qdot0, impulse0, lateral0 = q.copy(), self.qdot.copy(), self.impulse.copy(), self.lateral.copy()
         cm0 = self.center_of_mass(q0)
         substeps = np.full(B, self.substeps, np.int64)
@@ -147,6 +155,17 @@ class SlidingWheelPhysics:
         if forces is not None:
             forces[:] = self.impulse / self.last_h[:, None]
             scale[:] = 1.0
+
+    def _compile_bookkeeping(self, q, u, obs, aux) -> None:
+        """Compile the step's kernels other than the row kernel (:func:`_centers`, :func:`_verdicts`,
+        :func:`_finish`) by calling them on no row, with the argument types of :meth:`step`'s calls."""
+        none, rows = np.zeros((0, 2)), np.zeros(0, np.int64)
+        cm = self.center_of_mass(q[:0])
+        _verdicts(q[:0], self.qdot[:0], rows, np.ones(0, np.bool_), np.ones(0), np.zeros((0, 5)), none, np.zeros(0),
+                  np.zeros(0), self.params.energy_tolerance, self.params.energy_floor)
+        _finish(q[:0], self.qdot[:0], cm, none, np.zeros((0, 5)), np.zeros(0), np.zeros(0), np.zeros(0),
+                self.params.dt, self.params.include_position, self.half_length, self.mass, self.lateral[:0],
+                sliding_step.SLIDE_SPEED, obs[:0], u[:0], aux[:0], self.slip[:0])
 
     def bind_step(self, q, u, torques, obs, aux, forces=None, scale=None):
         return functools.partial(self.step, q, u, torques, obs, aux, forces, scale)

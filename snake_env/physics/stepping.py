@@ -1050,7 +1050,7 @@ def _finish_step(model, settings, q, u, torques, obs, aux, forces, scale, pendin
         _step_alone(model, settings, q, u, torques, obs, aux, forces, scale)
     if pending:  # (never threaded: the parallel kernel finishes its own)
         if _background is not None and not _finish_rows.signatures:
-            _await_background_compile()
+            await_background_compile()
         _finish_rows(model, settings, q, u, torques, obs, aux, forces, scale)
 
 
@@ -1097,8 +1097,8 @@ def wheel_lateral_forces(params: PhysicsParams, q, u, torques, out, scale) -> No
 
 
 # Said once per process on stderr before the first step compiles the kernels: measured 11-16 s from an
-# empty cache on the idle 2-core machine for the no-slip wheels, 17.9 s for the sliding ones (docs/benchmarks.md,
-# cold start); numba caches the result on disk.
+# empty cache on the idle 2-core machine for the no-slip wheels, 13-16 s for the sliding ones with their row
+# kernel compiled in a second process (docs/benchmarks.md, cold start); numba caches the result on disk.
 COMPILE_NOTICE = ("snake_env: compiling the physics kernels, first run only (about 10-20 s on a "
                   "2-core machine; cached afterwards)")
 _compile_announced = False
@@ -1134,18 +1134,24 @@ BACKGROUND_WAIT_S = 600.0  # s: longest wait for the child before compiling here
 _background = None  # the child process (subprocess.Popen) until awaited
 _background_done = None  # POSIX: the read end of a pipe on which the child says it has cached every kernel
 _background_started = False
+_compiling_on = []  # children awaited on their pipe, which may compile on (await_background_compile(until_exit))
 
 
-def compile_in_background(unlimited_grip: bool = False) -> bool:
+def compile_in_background(unlimited_grip: bool = False, sliding_kernel=None, sliding_method: int = 0) -> bool:
     """Start :mod:`snake_env.physics.background_compile` once per process if :func:`_finish_rows` is not
     compiled or cached yet; with ``unlimited_grip`` (the env's wheels never slip) it compiles the wheel
-    forces' own sweep too, which such an env needs at its first step. True if started."""
+    forces' own sweep too, which such an env needs at its first step. With ``sliding_kernel`` (the sliding
+    wheels' row kernel of friction solve ``sliding_method``, ``sliding_step.ADVANCE_ROWS``) it compiles
+    that kernel instead, if not compiled or cached yet. True if started."""
     global _background, _background_done, _background_started
-    if _background_started or _finish_rows.signatures or getattr(sys, "frozen", False) or _cached(_finish_rows):
-        return False  # (a frozen app's sys.executable is the app, not Python)
+    kernel = _finish_rows if sliding_kernel is None else sliding_kernel
+    if (_background_started or getattr(kernel, "signatures", True) or getattr(sys, "frozen", False)
+            or _cached(kernel)):
+        return False  # (a frozen app's sys.executable is the app, not Python; not a numba kernel: nothing to cache)
     _background_started = True
     args = [sys.executable, "-m", "snake_env.physics.background_compile"]
     args += ["--unlimited-grip"] if unlimited_grip else []
+    args += ["--sliding", str(sliding_method)] if sliding_kernel is not None else []
     done_read, done_write, pass_fds = None, None, ()
     if os.name == "posix":  # the child says "done" before its exit, which takes ~0.4 s more (numba, LLVM)
         done_read, done_write = os.pipe()
@@ -1170,13 +1176,18 @@ def background_compile_running() -> bool:
     return _background is not None
 
 
-def _await_background_compile() -> None:
+def await_background_compile(until_exit: bool = False) -> None:
     """Wait for the background compile (if any) to finish, so the next call loads its kernels from the
-    cache: until the child says so on its pipe (or exits, which closes the pipe), else until it exits."""
+    cache: until the child says so on its pipe (or exits, which closes the pipe), else until it exits.
+    ``until_exit``: until it exits, having cached the kernels it compiles after saying so (the sliding
+    wheels' exact solves), as a benchmark's next fresh process expects."""
     global _background, _background_done
     child, _background = _background, None
     done, _background_done = _background_done, None
     if child is None:
+        if until_exit:  # one awaited earlier (its pipe read) may still be compiling what it compiles after
+            for earlier in _compiling_on:
+                earlier.wait()
         return
     if done is not None:
         with os.fdopen(done, "rb") as pipe:
@@ -1185,8 +1196,10 @@ def _await_background_compile() -> None:
                 pipe.read(1)  # b"d" when done; b"" when the child exited without saying so
             else:  # stuck: compile here (the cache write is atomic either way)
                 child.kill()
-        threading.Thread(target=child.wait, daemon=True).start()  # reaps it when it exits
-        return
+        if not until_exit:
+            _compiling_on.append(child)
+            threading.Thread(target=child.wait, daemon=True).start()  # reaps it when it exits
+            return
     try:
         child.wait(timeout=BACKGROUND_WAIT_S)
     except subprocess.TimeoutExpired:  # stuck: compile here (the cache write is atomic either way)
