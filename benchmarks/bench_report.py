@@ -190,7 +190,7 @@ def table_rows(results: dict) -> list[tuple[str, str, str]]:
                      + (f"{_fmt(startup['first_run']['import_and_first_step_s'])} s to the first step, "
                         f"{_fmt(startup['cold_start_s'])} s with a first 32-env vector step"
                         + (f", {_fmt(startup['first_run']['all_kernels_s'])} s until the background compile "
-                           f"(refinement kernels) finished" if "all_kernels_s" in startup["first_run"] else "")
+                           f"(the kernels few steps need) finished" if "all_kernels_s" in startup["first_run"] else "")
                         if startup.get("cold_start_s") is not None else "not measured")))
     other = _get(results, "startup_no_slip")
     if other:

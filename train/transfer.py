@@ -9,7 +9,8 @@ with no id of its own, on the generic id with ``n_links=n``, by ``snake-eval`` (
 seeds 0..episodes-1); the serpenoid searched for that length on the same physics
 (``configs/serpenoid.yaml``; ``python -m snake_env.agents.search --env snake_env/Snake-vN --n-links n``
 for a new length) runs on the same episode seeds. Prints a markdown table (speed, ratio, and whether
-the run trained on that size); ``--plot`` draws the ratio against n. Evaluations are cached as JSON
+the run trained on that size, its gait's frequency, the share of wheel-steps outside the friction cone and,
+on wheels that slide, the share that slid); ``--plot`` draws the ratio against n. Evaluations are cached as JSON
 beside ``--json`` (``<json stem>_cache/``), so a rerun only adds what is missing.
 """
 
@@ -59,18 +60,23 @@ def evaluate_sizes(run: Path, sizes: list[int], episodes: int, cache: Path) -> l
         rows.append({"n_links": n, "trained_on": n in trained, "speed": speed, "serpenoid": reference,
                      "ratio": speed / reference if reference > 0 else float("nan"),
                      "joint_frequency": policy.get("mean_dominant_joint_frequency"),
-                     "outside_cone": policy.get("mean_outside_friction_cone_share")})
+                     "outside_cone": policy.get("mean_outside_friction_cone_share"),
+                     "sliding": policy.get("mean_wheel_slip_share")})
     return rows
 
 
 def markdown(rows: list[dict]) -> str:
-    lines = ["| n | trained on it | v_x (m/s) | serpenoid v_x (m/s) | ratio | joint freq. (Hz) | outside the cone |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| n | trained on it | v_x (m/s) | serpenoid v_x (m/s) | ratio | joint freq. (Hz) | outside the cone "
+             "| sliding |", "|---|---|---|---|---|---|---|---|"]
+
+    def share(value):
+        return "-" if value is None else f"{value:.1%}"
+
     for r in rows:
         freq = "-" if r["joint_frequency"] is None else f"{r['joint_frequency']:.2f}"
-        cone = "-" if r["outside_cone"] is None else f"{r['outside_cone']:.1%}"
         lines.append(f"| {r['n_links']} | {'yes' if r['trained_on'] else 'no'} | {r['speed']:.3f} | "
-                     f"{r['serpenoid']:.3f} | {r['ratio']:.2f} | {freq} | {cone} |")
+                     f"{r['serpenoid']:.3f} | {r['ratio']:.2f} | {freq} | {share(r['outside_cone'])} "
+                     f"| {share(r.get('sliding'))} |")
     return "\n".join(lines)
 
 

@@ -143,7 +143,9 @@ def test_transfer_table_over_sizes(multi_n_runs, tmp_path, capsys):
     assert [(r["n_links"], r["trained_on"]) for r in rows] == [(3, True), (8, False)]
     for r in rows:
         assert r["ratio"] == pytest.approx(r["speed"] / r["serpenoid"]) and r["serpenoid"] > 0
-    assert "| 8 | no |" in capsys.readouterr().out
+        assert 0.0 <= r["sliding"] <= 1.0  # the share of wheel-steps that slid (v4's wheels)
+    table = capsys.readouterr().out
+    assert "| 8 | no |" in table and "| sliding |" in table
     assert (tmp_path / "transfer.png").read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(SystemExit) as exit_info:
         transfer_main([str(tmp_path), "--sizes", "3", "--json", str(out)])
