@@ -71,6 +71,14 @@ PGS_MAX_SWEEPS = 5000  # projected Gauss-Seidel sweeps at most; beyond them the 
 SLIDE_SPEED = 1e-6
 
 
+# The three calls of every substep (_substep_loads, the friction solve _recursive_solve, _substep_end) are inlined
+# into the row kernels. Each passes ~25 arrays, and a call of a compiled function handles every array argument
+# (its reference count, most likely) on the way in and out: at n = 5 the calls cost about a third of a substep.
+# Inlined, a substep takes 1.7x, 1.5x, 1.35x and 1.2x less time at n = 3, 5, 12 and 30, with the same bits
+# (docs/benchmarks.md); the cold start did not move beyond its noise.
+SUBSTEP_CALLS_INLINED = ("_substep_loads", "_recursive_solve", "_substep_end")
+
+
 def solve_method(rotor) -> int:
     """The fastest friction solve (``advance``'s ``method``) for a rotor inertia matrix: the O(n) recursion
     without rotors, the null-space solve with them (their inertia couples neighbouring joints)."""
@@ -189,7 +197,7 @@ def _warm_state(impulse, grip, h):
     return state
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # per substep: see SUBSTEP_CALLS_INLINED
 def _substep_loads(q, qdot, command, grip, c_joint, c_wheel, stall, inv_no_load, t_max, braking, joint_limit, k_lim,
                    c_lim, inv_room, mass, h, half, cos, sin, phi, phidot, T, A, torque, bounds, V, acc, E, cterm):
     """A substep's loads, link by link, into the arrays after ``half``: the joints' torques T (N m; the motors'
@@ -221,7 +229,7 @@ def _substep_loads(q, qdot, command, grip, c_joint, c_wheel, stall, inv_no_load,
         cterm[k] = h * (-qdot[k] * speed + (-sin[k] * acc[k, 0] + cos[k] * acc[k, 1]))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # per substep: see SUBSTEP_CALLS_INLINED
 def _substep_end(q, qdot, v_new, V, V_new, T, A, phidot, cos, sin, c_wheel, impulse, lateral, h, iterations, stats,
                  sliding_substeps):
     """The end of a substep whose solve gave v_new (V_new): the work counters of ``stats`` (the trapezoid terms of
@@ -482,7 +490,7 @@ def _null_space_solve(qdot, cos, sin, half, mass, inertia, rotor, rotor_on, V, E
         return iteration + 1
     return -1
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # per substep: see SUBSTEP_CALLS_INLINED
 def _recursive_solve(qdot, cos, sin, half, mass, inertia, rotor, V, E, torque, cterm, bounds, h, state, impulse, v_new,
                      V_new, lateral, Ak, bk, alpha, beta, Zp, K, Lk, f):
     """:func:`_null_space_solve`'s problem in O(n) per active-set iteration, for chains without rotors: the

@@ -216,3 +216,10 @@ def test_the_three_friction_solves_agree(n, rotor):
             states["slide"] += int(np.sum(sliding))
             states["grip"] += int(np.sum(~sliding))
     assert min(states.values()) > 0  # both kinds of wheel were tested
+
+
+def test_the_per_substep_calls_are_inlined_into_the_row_kernels():
+    """The speed of a substep rests on them (sliding_step.SUBSTEP_CALLS_INLINED); the recorded forward fixture holds
+    the bits."""
+    for name in sliding_step.SUBSTEP_CALLS_INLINED:
+        assert getattr(sliding_step, name).targetoptions.get("inline") == "always", name
