@@ -65,8 +65,7 @@ class SlidingWheelPhysics:
         self.method = sliding_step.solve_method(wheels.rotor)  # the friction solve (sliding_step.advance)
         # its row kernel, about half of a first step's compile, in a second process while this one compiles
         # the reset, observation, task and bookkeeping kernels (step waits for it before its first call)
-        kernel = sliding_step.ADVANCE_ROWS[self.method]
-        stepping.compile_in_background(sliding_kernel=getattr(kernel, "func", kernel), sliding_method=self.method)
+        stepping.compile_in_background(sliding_method=self.method)
         self.grip = config.grip()
         self.wheel_load = config.wheel_load()
         self.draws: dict[str, np.ndarray] = {}

@@ -77,7 +77,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from snake_env.dynamics import compiled
+from snake_env.dynamics import compiled, sliding_step
 
 from .bound_kernel import BoundKernel
 
@@ -1137,21 +1137,25 @@ _background_started = False
 _compiling_on = []  # children awaited on their pipe, which may compile on (await_background_compile(until_exit))
 
 
-def compile_in_background(unlimited_grip: bool = False, sliding_kernel=None, sliding_method: int = 0) -> bool:
+def compile_in_background(unlimited_grip: bool = False, sliding_method: int | None = None) -> bool:
     """Start :mod:`snake_env.physics.background_compile` once per process if :func:`_finish_rows` is not
     compiled or cached yet; with ``unlimited_grip`` (the env's wheels never slip) it compiles the wheel
-    forces' own sweep too, which such an env needs at its first step. With ``sliding_kernel`` (the sliding
-    wheels' row kernel of friction solve ``sliding_method``, ``sliding_step.ADVANCE_ROWS``) it compiles
-    that kernel instead, if not compiled or cached yet. True if started."""
+    forces' own sweep too, which such an env needs at its first step. With ``sliding_method`` it compiles
+    instead the sliding wheels' row kernel of that friction solve (``sliding_step.ADVANCE_ROWS``), if not
+    compiled or cached yet. True if started."""
     global _background, _background_done, _background_started
-    kernel = _finish_rows if sliding_kernel is None else sliding_kernel
+    if sliding_method is None:
+        kernel = _finish_rows
+    else:
+        kernel = sliding_step.ADVANCE_ROWS[sliding_method]
+        kernel = getattr(kernel, "func", kernel)  # (a partial of a kernel: the exact solves)
     if (_background_started or getattr(kernel, "signatures", True) or getattr(sys, "frozen", False)
             or _cached(kernel)):
         return False  # (a frozen app's sys.executable is the app, not Python; not a numba kernel: nothing to cache)
     _background_started = True
     args = [sys.executable, "-m", "snake_env.physics.background_compile"]
     args += ["--unlimited-grip"] if unlimited_grip else []
-    args += ["--sliding", str(sliding_method)] if sliding_kernel is not None else []
+    args += ["--sliding", str(sliding_method)] if sliding_method is not None else []
     done_read, done_write, pass_fds = None, None, ()
     if os.name == "posix":  # the child says "done" before its exit, which takes ~0.4 s more (numba, LLVM)
         done_read, done_write = os.pipe()
