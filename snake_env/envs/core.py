@@ -385,6 +385,12 @@ class TaskEnvBase:
         (one row for the single env)."""
         return self._batch.task_state
 
+    @property
+    def wheel_grip(self) -> np.ndarray | None:
+        """Each wheel's grip mu m_k g (N), one row per sub-env (B, n), None without ``wheel_friction``. A
+        randomized env's rows change at their resets (the array is updated in place)."""
+        return self._batch.row_grip if self._batch.report_grip else None
+
     def set_slip_cost_weight(self, weight: float) -> None:
         """Change the slip cost's weight (per m g of excess, >= 0) of every sub-env from the next step on,
         e.g. a curriculum during training (:class:`snake_env.train.callbacks.SlipCostSchedule`). The env

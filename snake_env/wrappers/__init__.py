@@ -7,6 +7,7 @@ batched mode (:mod:`.base`; the single env is a batch of one):
 
 * ``phase_observation`` (:class:`PhaseObservation`): sin, cos of a clock per frequency;
 * ``goal_frame`` (:class:`GoalFrameObservation`): the goal in the snake's heading frame;
+* ``wheel_grip_observation`` (:class:`WheelGripObservation`): each wheel's lateral force over its grip;
 * ``joint_target`` (:class:`JointTargetAction`): target joint angles tracked by a joint PD;
 * ``cpg`` (:class:`CPGAction`): the parameters of a serpenoid CPG tracked by the joint PD;
 * ``serpenoid_residual`` (:class:`SerpenoidResidualAction`): a torque correction added to the
@@ -25,12 +26,14 @@ from snake_env.controllers.cpg import CPG_PARAMETERS
 from snake_env.controllers.joint_pd import REFERENCE_RATES
 
 from .action import CPGAction, CPGActionVector, JointTargetAction, JointTargetActionVector
-from .observation import GoalFrameObservation, GoalFrameObservationVector, PhaseObservation, PhaseObservationVector
+from .observation import (GoalFrameObservation, GoalFrameObservationVector, PhaseObservation, PhaseObservationVector,
+                          WheelGripObservation, WheelGripObservationVector)
 from .parser import WRAPPERS, parse_env_wrapper, wrap_env, wrap_vector_env
 from .residual import (STEERING_ACTIONS, STEERING_BASELINES, SerpenoidResidualAction, SerpenoidResidualActionVector,
                        SteeringResidualAction, SteeringResidualActionVector)
 
 __all__ = ["PhaseObservation", "PhaseObservationVector", "GoalFrameObservation", "GoalFrameObservationVector",
+           "WheelGripObservation", "WheelGripObservationVector",
            "JointTargetAction", "JointTargetActionVector", "CPGAction", "CPGActionVector", "SerpenoidResidualAction",
            "SerpenoidResidualActionVector", "SteeringResidualAction", "SteeringResidualActionVector", "WRAPPERS",
            "parse_env_wrapper", "wrap_env", "wrap_vector_env", "REFERENCE_RATES", "CPG_PARAMETERS",

@@ -159,6 +159,9 @@ class BatchedMode:
     def stepped(self) -> None:
         """Called after every env step (after :meth:`act`, before the rows restart)."""
 
+    def seen(self, info: dict) -> None:
+        """Called with every env step's ``info`` (after :meth:`stepped`, before the rows restart)."""
+
     def observe(self, obs, rows=slice(None)):
         """``obs`` with the mode's features appended: ``rows=slice(None)`` for a batch (B rows), an int
         i for sub-env i's unbatched observation (the single env's, row 0, or ``final_obs[i]``)."""
@@ -194,6 +197,7 @@ class _ModeWrapper:
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._obs = obs
         self.batched.stepped()
+        self.batched.seen(info)
         return obs, reward, terminated, truncated, info
 
 

@@ -1,5 +1,6 @@
-"""Observation modes: a clock (``phase_observation``) and the goal in the snake's heading frame
-(``goal_frame``); each a batched mode and its single and vector wrappers (:mod:`.base`)."""
+"""Observation modes: a clock (``phase_observation``), the wheels' share of their grip
+(``wheel_grip_observation``) and the goal in the snake's heading frame (``goal_frame``); each a batched
+mode and its single and vector wrappers (:mod:`.base`)."""
 
 from __future__ import annotations
 
@@ -74,6 +75,57 @@ class PhaseObservationVector(VectorEnvWrapper):
 
     def __init__(self, env, frequencies=25.0):
         super().__init__(env, _PhaseClock(env, env.num_envs, frequencies))
+
+
+class _WheelGrip(BatchedMode):
+    """Per row, each wheel's lateral force at the last step's end over its grip, F_k / (mu m_k g), read from
+    the step's ``info["wheel_lateral_force"]``; zero after a reset."""
+
+    attributes = ("grip",)
+    bound = np.inf  # a no-slip wheel's force may exceed its grip (the motion's own excess); a sliding one's cannot
+
+    def __init__(self, env, num_envs: int):
+        grip = getattr(env.unwrapped, "wheel_grip", None)
+        if grip is None:
+            raise ValueError("wheel_grip_observation needs wheels with a grip: wheel_friction must be a number > 0 "
+                             "(the default from v3), got wheel_friction=None")
+        self.grip = grip  # (B, n) N, updated in place by a randomized env's resets
+        self.extra = grip.shape[1]
+        self.usage = np.zeros((num_envs, self.extra))
+
+    def restart(self, mask=None) -> None:
+        self.usage[selected(mask)] = 0.0
+
+    def seen(self, info: dict) -> None:
+        force = np.asarray(info["wheel_lateral_force"], np.float64).reshape(self.usage.shape)
+        np.divide(force, self.grip, out=self.usage)
+
+    def observe(self, obs, rows=slice(None)):
+        return append(obs, self.usage[rows])
+
+
+class WheelGripObservation(SingleEnvWrapper):
+    """Appends each wheel's share of its grip, ``F_k / (mu m_k g)``, to the observation: its lateral force
+    at the last step's end (``info["wheel_lateral_force"]``, N) over the most the floor gives it (N); 0 after a
+    reset.
+
+    On the sliding wheels (v4) a wheel at +-1 slides, and one near it is about to: the observation says how
+    close each wheel is to the friction cone's edge, which the joint angles and rates alone do not (while wheels
+    slide, the body's lateral velocity is not in the observation). It is meant for policies asked to keep
+    within the grip (``slip_cost_weight``, :class:`snake_env.train.callbacks.SlipCostLagrangian`). On the
+    no-slip wheels (v3) a share can exceed 1: the motion asks more than the grip. Needs ``wheel_friction``.
+    """
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env, _WheelGrip(env, 1))
+
+
+class WheelGripObservationVector(VectorEnvWrapper):
+    """:class:`WheelGripObservation` for a batched vector env (one row per sub-env, zeroed by its
+    (auto)reset; ``info["final_obs"]`` of same-step autoreset carries the episode's last shares)."""
+
+    def __init__(self, env):
+        super().__init__(env, _WheelGrip(env, env.num_envs))
 
 
 def _goal_frame_geometry(env) -> dict:

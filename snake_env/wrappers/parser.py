@@ -8,7 +8,8 @@ from collections.abc import Mapping, Sequence
 import gymnasium as gym
 
 from .action import CPGAction, CPGActionVector, JointTargetAction, JointTargetActionVector
-from .observation import GoalFrameObservation, GoalFrameObservationVector, PhaseObservation, PhaseObservationVector
+from .observation import (GoalFrameObservation, GoalFrameObservationVector, PhaseObservation, PhaseObservationVector,
+                          WheelGripObservation, WheelGripObservationVector)
 from .residual import (SerpenoidResidualAction, SerpenoidResidualActionVector, SteeringResidualAction,
                        SteeringResidualActionVector)
 
@@ -20,6 +21,7 @@ WRAPPERS = {
     "serpenoid_residual": (SerpenoidResidualAction, SerpenoidResidualActionVector),
     "steering_residual": (SteeringResidualAction, SteeringResidualActionVector),
     "goal_frame": (GoalFrameObservation, GoalFrameObservationVector),
+    "wheel_grip_observation": (WheelGripObservation, WheelGripObservationVector),
 }
 
 

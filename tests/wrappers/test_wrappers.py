@@ -17,7 +17,7 @@ from snake_env.controllers.serpenoid import SerpenoidController
 from snake_env.wrappers import (CPGAction, CPGActionVector, GoalFrameObservation, GoalFrameObservationVector,
                                 JointTargetAction, JointTargetActionVector, PhaseObservation, PhaseObservationVector, SerpenoidResidualAction,
                                 SerpenoidResidualActionVector, SteeringResidualAction, SteeringResidualActionVector,
-                                parse_env_wrapper, wrap_env, wrap_vector_env)
+                                WheelGripObservation, parse_env_wrapper, wrap_env, wrap_vector_env)
 
 ENV = "snake_env/Snake3-v2"
 
@@ -166,7 +166,7 @@ def test_clock_wrappers_restart_on_same_step_autoreset_and_clock_the_final_obs(s
 
 @pytest.mark.parametrize("spec, message", [
     ({"joint_targets": {}}, "env_wrapper name must be one of ['cpg', 'goal_frame', 'joint_target', 'phase_observation', 'serpenoid_residual', "
-     "'steering_residual'], "
+     "'steering_residual', 'wheel_grip_observation'], "
      "got 'joint_targets'"),
     ("torque_mode", "env_wrapper name must be one of"),
     ({"joint_target": {"kp": -1.0}}, "kp must be a finite number >= 0"),
@@ -657,3 +657,65 @@ def test_phase_observation_on_a_goal_task_extends_the_observation_entry():
     t = env.unwrapped.dt
     np.testing.assert_allclose(obs["observation"][-4:], [np.sin(10 * t), np.cos(10 * t), np.sin(20 * t),
                                                           np.cos(20 * t)], rtol=1e-12)
+
+
+def test_wheel_grip_observation_is_each_wheels_force_over_its_grip_and_says_which_slide():
+    """The appended shares are info's lateral forces over mu m g, computed here from the env's settings; 0
+    after a reset; on the sliding wheels (v4) within [-1, 1], and +-1 exactly on the wheels that slid."""
+    from gymnasium.utils.env_checker import check_env
+
+    env = WheelGripObservation(gym.make("snake_env/Snake3-v4"))
+    base = env.unwrapped
+    grip = base.wheel_friction * np.broadcast_to(base.mass, (3,)) * 9.81
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "wrapped env" and unbounded-Box advice
+        check_env(env, skip_render_check=True)
+    obs, _ = env.reset(seed=3)
+    assert obs.shape == (2 + 2 + 2 + 2 + 3,) and not obs[-3:].any()
+    rng = np.random.default_rng(0)
+    slid = 0
+    for _ in range(120):
+        obs, _, _, _, info = env.step(rng.choice([-1.0, 1.0], 2).astype(np.float32))  # bang-bang: wheels slide
+        share = info["wheel_lateral_force"] / grip
+        np.testing.assert_allclose(obs[-3:], share, rtol=1e-6, atol=1e-7)  # float32 observation
+        assert np.all(np.abs(share) <= 1.0 + 1e-9)
+        np.testing.assert_allclose(np.abs(share[info["wheel_slip"]]), 1.0, rtol=1e-9)
+        slid += info["wheel_slip"].sum()
+    assert slid > 0
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP])
+def test_wheel_grip_observation_vector_follows_each_sub_env_and_restarts_with_its_episode(mode):
+    """Each row's shares are its own step's forces over its grip (a one-env vector env gives the single env's);
+    a row whose episode restarts shows zeros, and same-step autoreset's ``final_obs`` keeps the last shares."""
+    single = wrap_env(gym.make("snake_env/Snake3-v4"), "wheel_grip_observation")
+    one = wrap_vector_env(gym.make_vec("snake_env/Snake3-v4", num_envs=1, vectorization_mode="vector_entry_point"),
+                          "wheel_grip_observation")
+    for _, obs, vobs in side_by_side(single, one, seed=7, n_steps=20, rng_seed=1):
+        np.testing.assert_allclose(vobs[0], obs, rtol=0, atol=1e-6)
+    vector = wrap_vector_env(gym.make_vec("snake_env/Snake3-v4", num_envs=2, vectorization_mode="vector_entry_point",
+                                          max_episode_steps=5, autoreset_mode=mode), "wheel_grip_observation")
+    grip = vector.unwrapped.wheel_grip
+    assert vector.single_observation_space.shape == (11,)
+    obs, _ = vector.reset(seed=0)
+    assert not obs[:, -3:].any()
+    restarted = []
+    for step in range(7):
+        obs, _, _, truncated, info = vector.step(np.tile(np.array([1.0, -1.0], np.float32), (2, 1)))
+        share = info["wheel_lateral_force"] / grip
+        restarting = step == 5 if mode == AutoresetMode.NEXT_STEP else bool(truncated.all())
+        restarted.append(restarting)
+        if restarting:
+            assert not obs[:, -3:].any()
+        else:
+            np.testing.assert_allclose(obs[:, -3:], share, rtol=0, atol=1e-6)
+            assert np.abs(share).max() > 0
+        if mode == AutoresetMode.SAME_STEP and truncated.any():
+            for i in range(2):
+                np.testing.assert_allclose(info["final_obs"][i][-3:], share[i], rtol=0, atol=1e-6)
+    assert sum(restarted) == 1
+
+
+def test_wheel_grip_observation_refuses_wheels_without_a_grip():
+    with pytest.raises(ValueError, match="wheel_grip_observation needs wheels with a grip: wheel_friction must be"):
+        WheelGripObservation(gym.make("snake_env/Snake3-v2"))
