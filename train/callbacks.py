@@ -423,11 +423,17 @@ class SlipCostLagrangian(BaseCallback):
     Random torques slide a snake's wheels too (about 23 % of wheel-steps on Snake5-v4 at the entries' initial
     action noise): a constraint from the first step prices moving at all before a gait exists, and the
     policy learns to stand still. So the multiplier stays at ``initial_weight`` until ``start_fraction`` of the
-    run (training progress, as :class:`SlipCostSchedule`), and the dual steps start there.
+    run (training progress, as :class:`SlipCostSchedule`) and until the policy moves: the first update at
+    which the measured period's mean forward speed (``info["x_velocity"]``, m/s) is at least ``start_speed``.
+    The dual steps start there and go on whatever the speed does later. (A seed that had no gait at
+    ``start_fraction`` learned to stand still under the constraint and never left: Snake5-v4 seed 4 at
+    0.02x the serpenoid, where seeds 0-3 moved at about 0.9-1.4 m/s by then; docs/env.md, "Seeing the grip".)
 
     Args:
         target_share: the share of wheel-steps allowed to slide, in [0, 1).
         start_fraction: training progress at which the dual steps start, in [0, 1).
+        start_speed: the mean forward speed (m/s) the policy's rollouts must reach before the dual steps
+            start (>= 0; 0: at ``start_fraction`` whatever the speed).
         gain: multiplier change per unit of share above the target, per update (> 0).
         proportional: the weight's extra per unit of share above the target (>= 0).
         initial_weight: the multiplier at the start of a new run (>= 0).
@@ -438,7 +444,7 @@ class SlipCostLagrangian(BaseCallback):
     WEIGHT_ROLE = "the evaluation's weight"
 
     def __init__(self, target_share: float = 0.03, start_fraction: float = 0.3, gain: float = 1.0,
-                 proportional: float = 0.0,
+                 proportional: float = 0.0, start_speed: float = 0.0,
                  initial_weight: float = 0.0, max_weight: float = 20.0, update_every: int = 8192,
                  verbose: int = 0):
         super().__init__(verbose)
@@ -446,6 +452,7 @@ class SlipCostLagrangian(BaseCallback):
                   ("start_fraction", start_fraction, lambda v: 0.0 <= v < 1.0, "a number in [0, 1)"),
                   ("gain", gain, lambda v: v > 0.0, "a number > 0"),
                   ("proportional", proportional, lambda v: v >= 0.0, "a number >= 0"),
+                  ("start_speed", start_speed, lambda v: v >= 0.0, "a number >= 0"),
                   ("initial_weight", initial_weight, lambda v: v >= 0.0, "a number >= 0"),
                   ("max_weight", max_weight, lambda v: v > 0.0, "a number > 0"))
         for name, value, ok, allowed in checks:
@@ -461,6 +468,7 @@ class SlipCostLagrangian(BaseCallback):
         self.start_fraction = float(start_fraction)
         self.gain = float(gain)
         self.proportional = float(proportional)
+        self.start_speed = float(start_speed)
         self.initial_weight = float(initial_weight)
         self.max_weight = float(max_weight)
         self.update_every = update_every
@@ -470,6 +478,9 @@ class SlipCostLagrangian(BaseCallback):
         self.weight = None
         self._slid = 0  # sliding wheel-steps since the last update
         self._wheel_steps = 0
+        self._speed_sum = 0.0  # sum of info["x_velocity"] over env-steps since the last update
+        self._env_steps = 0
+        self.started = False  # the dual steps have started (saved with the model, as the multiplier)
         self._steps = 0  # vector steps since the last update (off-policy)
 
     def update(self, share: float) -> float:
@@ -487,8 +498,13 @@ class SlipCostLagrangian(BaseCallback):
         self.on_policy = isinstance(self.model, OnPolicyAlgorithm)
         # a resumed run's multiplier came back with the model (an attribute SB3 saves)
         self.multiplier = float(getattr(self.model, "slip_cost_multiplier", self.initial_weight))
+        self.started = bool(getattr(self.model, "slip_cost_started", False))
         self._set(self.multiplier)
-        self._slid = self._wheel_steps = self._steps = 0
+        self._reset_counts()
+
+    def _reset_counts(self) -> None:
+        self._slid = self._wheel_steps = self._steps = self._env_steps = 0
+        self._speed_sum = 0.0
 
     def _on_step(self) -> bool:
         for info in self.locals["infos"]:
@@ -497,6 +513,9 @@ class SlipCostLagrangian(BaseCallback):
                 raise ValueError("SlipCostLagrangian needs info['wheel_slip'] (an env with wheel_friction)")
             self._slid += int(np.count_nonzero(slip))
             self._wheel_steps += len(slip)
+            if self.start_speed > 0.0 and not self.started:
+                self._speed_sum += float(info["x_velocity"])
+                self._env_steps += 1
         self._steps += 1
         if not self.on_policy and self._steps * self.training_env.num_envs >= self.update_every:
             self._update()
@@ -510,13 +529,18 @@ class SlipCostLagrangian(BaseCallback):
         if not self._wheel_steps:
             return
         share = self._slid / self._wheel_steps
-        if training_progress(self.model) >= self.start_fraction:
+        if not self.started and training_progress(self.model) >= self.start_fraction:
+            self.started = self.start_speed == 0.0 or self._speed_sum / self._env_steps >= self.start_speed
+        if self.started:
             self._set(self.update(share))
         self.model.slip_cost_multiplier = self.multiplier
+        self.model.slip_cost_started = self.started
         self.logger.record("train/slip_share", share)
         self.logger.record("train/slip_cost_multiplier", self.multiplier)
         self.logger.record("train/slip_cost_weight", self.weight)
-        self._slid = self._wheel_steps = self._steps = 0
+        if self._env_steps:
+            self.logger.record("train/forward_speed", self._speed_sum / self._env_steps)
+        self._reset_counts()
 
     def _on_training_end(self) -> None:
         self._set(self.configured_weight)  # as the evaluation and the shipped env have it

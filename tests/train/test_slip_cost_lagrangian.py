@@ -39,16 +39,17 @@ class _Record(BaseCallback):
     def __init__(self, eval_env):
         super().__init__()
         self.eval_env = eval_env
-        self.weights, self.eval_weights, self.shares = [], [], []
+        self.weights, self.eval_weights, self.shares, self.speeds = [], [], [], []
 
     def _on_step(self) -> bool:
         self.weights.append(self.training_env.get_attr("slip_cost_weight")[0])
         self.eval_weights.append(self.eval_env.get_attr("slip_cost_weight")[0])
         self.shares.append(np.mean([info["wheel_slip"] for info in self.locals["infos"]]))
+        self.speeds.append(np.mean([info["x_velocity"] for info in self.locals["infos"]]))
         return True
 
 
-def _train(target_share, initial_weight, start_fraction=0.0, steps=512):
+def _train(target_share, initial_weight, start_fraction=0.0, steps=512, start_speed=0.0):
     from snake_env.train.envs import make_vec_env, wrap_normalize
     from snake_env.train.train import build_model
 
@@ -56,7 +57,7 @@ def _train(target_share, initial_weight, start_fraction=0.0, steps=512):
         "env_kwargs.slip_cost_weight=4.0", "env_kwargs.max_episode_steps=50", "n_steps=64", "batch_size=64",
         "n_epochs=1", "policy_kwargs.net_arch=[8]", "policy_kwargs.log_std_init=1.0"], n_envs=2)
     config["callback"] = [{NAME: {"target_share": target_share, "gain": 2.0, "initial_weight": initial_weight,
-                                  "start_fraction": start_fraction}}]
+                                  "start_fraction": start_fraction, "start_speed": start_speed}}]
     config = cfg.validate(config)
     venv = wrap_normalize(make_vec_env(config, 2, 0), config, training=True)
     eval_env = make_vec_env(config, 1, 10_000)
@@ -102,6 +103,7 @@ def test_weight_falls_to_zero_while_wheels_slide_less_than_the_target(tmp_path):
     ({"start_fraction": 1.0}, r"start_fraction must be a number in \[0, 1\)"),
     ({"proportional": -1.0}, "proportional must be a number >= 0"),
     ({"max_weight": float("inf")}, "max_weight must be a number > 0"),
+    ({"start_speed": -0.1}, "start_speed must be a number >= 0"),
     ({"initial_weight": 30.0}, r"initial_weight must be <= max_weight \(20.0\)"),
     ({"update_every": 0}, "update_every must be an integer >= 1"),
     ({"price": 1.0}, "unexpected keyword"),
@@ -144,6 +146,30 @@ def test_dual_steps_wait_for_start_fraction():
     assert np.all(weights[:4] == 0.0)
     np.testing.assert_allclose(weights[4:], np.cumsum(2.0 * shares[3:-1]), rtol=1e-12)
     assert weights[-1] > 0.0
+
+
+def test_dual_steps_wait_for_the_policy_to_move():
+    # never fast enough: the weight stays at its initial value past start_fraction; the rollout speeds recorded
+    model, lagrangian, record, _ = _train(target_share=0.0, initial_weight=0.0, start_fraction=0.5,
+                                          start_speed=50.0, steps=1024)
+    assert np.all(np.array(record.weights) == 0.0) and not lagrangian.started and not model.slip_cost_started
+    speeds = np.array(record.speeds).reshape(-1, 64).mean(axis=1)  # per rollout of 64 steps (both envs)
+    # the updates after rollouts 3.. are past start_fraction; a threshold at the fastest of rollouts 3-6
+    # opens the gate at that rollout's update and not before (rollouts 0-2 may be faster: too early)
+    first = 3 + int(np.argmax(speeds[3:-1]))
+    threshold = speeds[first] - 1e-9  # below it by more than the rounding of a sum taken in another order
+    assert threshold > 0.0 and np.all(speeds[3:first] < threshold)
+    # the same run (the weight is 0 until the gate opens) with the threshold at that rollout's speed
+    model, lagrangian, record, _ = _train(target_share=0.0, initial_weight=0.0, start_fraction=0.5,
+                                          start_speed=float(threshold), steps=1024)
+    weights = np.array(record.weights).reshape(-1, 64)[:, 0]
+    # identical until the first dual step (the weight prices only the reward, and the policy changes after it)
+    np.testing.assert_array_equal(np.array(record.speeds).reshape(-1, 64).mean(axis=1)[:first + 2],
+                                  speeds[:first + 2])
+    shares = np.array(record.shares).reshape(-1, 64).mean(axis=1)
+    assert np.all(weights[:first + 1] == 0.0)
+    np.testing.assert_allclose(weights[first + 1:], np.cumsum(2.0 * shares[first:-1]), rtol=1e-12)
+    assert weights[-1] > 0.0 and lagrangian.started and model.slip_cost_started
 
 
 def test_off_policy_updates_every_update_every_env_steps():
