@@ -46,7 +46,30 @@ def test_every_locomotion_id_has_a_searched_serpenoid():
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_newest_locomotion_entries_learn_from_plain_joint_torques(algo):
     """No gait prior (residual, steering, CPG, joint targets) between the shipped policy and the torques of
-    the newest forward ids; the residual modes stay opt-in (and in the previous ids' entries)."""
+    the newest forward ids; the residual modes stay opt-in (and in the previous ids' entries). An entry may
+    add to the observation (docs/wrappers.md): its wrapped env, stepped with the same seed and actions as the
+    bare env, gives the bare env's observation as its first entries, its rewards and its end of episode,
+    so the policy's action reaches the motors unchanged."""
+    import gymnasium as gym
+    import numpy as np
+
+    from snake_env.wrappers import wrap_env
+
     for env_id in newest_locomotion_ids():
         config = build_config(algo, env_id)
-        assert not config.get("env_wrapper"), (env_id, config.get("env_wrapper"))
+        if not config.get("env_wrapper"):
+            continue
+        kwargs = dict(config.get("env_kwargs") or {})
+        bare, wrapped = gym.make(env_id, **kwargs), wrap_env(gym.make(env_id, **kwargs), config["env_wrapper"])
+        assert wrapped.action_space == bare.action_space, env_id
+        obs_bare, _ = bare.reset(seed=3)
+        obs_wrapped, _ = wrapped.reset(seed=3)
+        size = obs_bare.shape[0]
+        assert obs_wrapped.shape[0] > size, env_id
+        np.testing.assert_array_equal(obs_wrapped[:size], obs_bare)
+        actions = np.random.default_rng(0).uniform(-1.0, 1.0, (40,) + bare.action_space.shape)
+        for action in actions:
+            obs_bare, reward_bare, term_bare, trunc_bare, _ = bare.step(action)
+            obs_wrapped, reward_wrapped, term_wrapped, trunc_wrapped, _ = wrapped.step(action)
+            np.testing.assert_array_equal(obs_wrapped[:size], obs_bare)
+            assert (reward_wrapped, term_wrapped, trunc_wrapped) == (reward_bare, term_bare, trunc_bare), env_id
