@@ -427,7 +427,7 @@ class SlipCostLagrangian(BaseCallback):
     which the measured period's mean forward speed (``info["x_velocity"]``, m/s) is at least ``start_speed``.
     The dual steps start there and go on whatever the speed does later. (A seed that had no gait at
     ``start_fraction`` learned to stand still under the constraint and never left: Snake5-v4 seed 4 at
-    0.02x the serpenoid, where seeds 0-3 moved at about 0.9-1.4 m/s by then; docs/env.md, "Seeing the grip".)
+    0.02x the serpenoid, where seeds 0-3 moved at about 1.3 m/s by then; docs/env.md, "A gate on speed".)
 
     Args:
         target_share: the share of wheel-steps allowed to slide, in [0, 1).
