@@ -31,6 +31,7 @@ from snake_env.physics.settings import number, split_kwargs
 
 ENERGY_KEY = "reward_energy"  # info key of the optional power cost (Task.energy_cost_weight)
 SLIP_KEY = "reward_slip"  # info key of the optional cost of the wheels' excess over their grip (Task.slip_cost_weight)
+ACTION_RATE_KEY = "reward_action_rate"  # info key of the optional cost of the action's change (Task.action_rate_cost_weight)
 # info of every step when the wheels' grip is modelled (wheel_friction given): per sub-env the wheels'
 # lateral forces (n,) (N, eq. 27's multipliers, from the step's final state and held torques under the
 # traction limit), whether each exceeds its grip mu m_k g (n,) (the motion alone asks more: the wheel
@@ -140,7 +141,8 @@ class SnakeBatch:
         self.num_envs = B
         self.physics_observation_space = physics_observation_space(n, self.params.include_position)
         self.single_observation_space = task.observation_space(config, self.physics_observation_space)
-        energy = ((ENERGY_KEY,) if task.energy_cost_weight else ()) + ((SLIP_KEY,) if task.slip_cost_weight else ())
+        energy = (((ENERGY_KEY,) if task.energy_cost_weight else ()) + ((SLIP_KEY,) if task.slip_cost_weight else ())
+                  + ((ACTION_RATE_KEY,) if task.action_rate_cost_weight else ()))
         if task.slip_cost_weight and config.wheel_friction is None:
             raise ValueError("slip_cost_weight needs wheel_friction (a mu): with unlimited grip no wheel slips")
         # the slip cost's info key is fixed at construction; set_slip_cost_weight may change its weight (even to 0)
@@ -153,6 +155,8 @@ class SnakeBatch:
         self.q = np.zeros((B, n + 2))
         self.u = np.zeros((B, 2))
         self.torques = np.zeros((B, n - 1))
+        # the last step's clipped actions, for the action-rate cost (0 after a reset); None without the cost
+        self.previous_action = np.zeros((B, n - 1)) if task.action_rate_cost_weight else None
         # one compiled call, a motor response in time, or a robot per row (randomize): physics.batch
         self.physics = batch_physics(config, self.params, B)  # (the sliding physics may start its compile there)
         # the first step's task kernels compile before its physics while that process is at work (_warm_up)
@@ -227,6 +231,8 @@ class SnakeBatch:
         q, u, obs, aux = self.physics.reset(rows, noise, rng)  # a randomized batch draws its robots here
         self.q[rows], self.u[rows], self.physics_obs[rows], self.aux[rows] = q, u, obs, aux
         self.task.reset(self.config, self.task_state, rows, rng, q, aux)
+        if self.previous_action is not None:
+            self.previous_action[rows] = 0.0
 
     def set_state(self, q, u) -> None:
         if hasattr(self.physics, "set_state"):  # a physics with a state of its own beyond (q, u)
@@ -298,6 +304,13 @@ class SnakeBatch:
             excess = np.maximum(np.abs(self.wheel_force) - self.task.slip_margin * self.grip, 0.0) / self.wheel_load
             extras[SLIP_KEY] = -self.task.slip_cost_weight * excess.sum(axis=1)
             rewards = rewards + extras[SLIP_KEY]
+        if self.previous_action is not None:
+            # every task: a cost on the change of the (clipped) action since the last step, as legged-robot RL
+            # charges its action rate (Rudin et al. 2022): torque that chatters at the control rate costs
+            change = a - self.previous_action
+            extras[ACTION_RATE_KEY] = -self.task.action_rate_cost_weight * np.einsum("bk,bk->b", change, change)
+            rewards = rewards + extras[ACTION_RATE_KEY]
+            self.previous_action[:] = a
         if failures:
             failed = self.failed
             # A failed step was undone (the pre-step state is kept): it is not an outcome of

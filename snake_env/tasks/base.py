@@ -290,6 +290,12 @@ class Task:
                                       doc="weight of the wheels' lateral force beyond their grip in the reward "
                                           "(sum over wheels of max(0, |lambda_k| - mu m_k g) / (m_k g); a cost; "
                                           "0: none; needs wheel_friction)")
+    action_rate_cost_weight: float = setting(0.0, "per (action change)^2", minimum=0.0, strict=False,
+                                             doc="weight of the squared change of the action since the last "
+                                                 "step, sum_k (a_k - a_k,prev)^2 with a in [-1, 1] and a_prev = 0 "
+                                                 "after a reset, in the reward (a cost; 0: none): the action-rate "
+                                                 "penalty of legged-robot RL (Rudin et al. 2022), against torque "
+                                                 "chatter at the control rate")
     slip_margin: float = setting(1.0, "fraction of mu m g", minimum=0.0, maximum=1.0,
                                  doc="the slip cost counts lateral force beyond this fraction of the grip, "
                                      "max(0, |lambda_k| - margin mu m_k g): below 1 it also charges wheels the "

@@ -112,6 +112,9 @@ class ForwardTask(Task):
     `slip_margin` < 1, beyond that share of the grip instead. On the sliding wheels (v4) a wheel's
     force never exceeds its grip (a sliding wheel's is its friction, mu m_k g), so only a margin
     below 1 charges anything: the sliding wheels and the gripping ones pushed beyond the margin.
+    With `action_rate_cost_weight` > 0 (every task) it loses that weight times the squared change of the
+    clipped action since the last step, sum_k (a_k - a_k,prev)^2 (a_prev = 0 after a reset), reported as
+    `info["reward_action_rate"]`: the action-rate penalty of legged-robot RL, against torque chatter.
 
     ## Starting State
     theta_k ~ U(-s, s) (rad) for every link, V_1 ~ U(-s, s) (m/s),
@@ -185,6 +188,7 @@ class ForwardTask(Task):
     | `reset_noise_scale` | 0.1 | half-width of the uniform start noise (rad, m/s, rad/s) |
     | `energy_cost_weight` | 0.0 | reward lost per W of actuator power (every task) |
     | `slip_cost_weight` | 0.0 | reward lost per link weight (m_k g) of lateral wheel force beyond the grip mu m_k g, summed over wheels (every task; info `reward_slip`) |
+    | `action_rate_cost_weight` | 0.0 | reward lost per unit of sum_k (a_k - a_k,prev)^2, the squared change of the clipped action since the last step (every task; info `reward_action_rate`) |
     | `slip_margin` | 1.0 | the slip cost counts lateral force beyond this share of the grip (0 < margin <= 1; below 1 it also charges wheels held near their grip, where a real wheel slides: `snake-eval --sliding-wheels`) |
 
     This task's arguments:

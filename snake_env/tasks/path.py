@@ -67,7 +67,8 @@ class PathTask(Task):
     - Truncation: after 1000 steps (40 s), or on a simulator failure.
 
     ## Arguments
-    The physical arguments of `Snake{n}-v3`, `reset_noise_scale`, `energy_cost_weight`, and:
+    The physical arguments of `Snake{n}-v3`, `reset_noise_scale`, the costs (`energy_cost_weight`,
+    `slip_cost_weight`, `slip_margin`, `action_rate_cost_weight`), and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|

@@ -58,7 +58,8 @@ class ReachTask(Task):
     - Truncation: after 400 steps (16 s), or on a simulator failure (see `Snake{n}-v3`).
 
     ## Arguments
-    The physical arguments of `Snake{n}-v3`, `reset_noise_scale`, `energy_cost_weight`, and:
+    The physical arguments of `Snake{n}-v3`, `reset_noise_scale`, the costs (`energy_cost_weight`,
+    `slip_cost_weight`, `slip_margin`, `action_rate_cost_weight`), and:
 
     | Parameter | Default | Description |
     |-----------|---------|-------------|
@@ -132,12 +133,15 @@ class ReachTask(Task):
     def compute_reward(self, achieved_goal, desired_goal, info=None):
         """Reward for goals (..., 2) (m), vectorized over leading axes (the step's reward). ``info``
         (a dict, or an array of the steps' dicts as HER passes them) is read only with
-        ``energy_cost_weight`` or ``slip_cost_weight`` > 0, for its ``reward_energy`` or ``reward_slip``."""
+        ``energy_cost_weight``, ``slip_cost_weight`` or ``action_rate_cost_weight`` > 0, for its ``reward_energy``,
+        ``reward_slip`` or ``reward_action_rate``."""
         reward = self._goal_reward(achieved_goal, desired_goal)
         if self.energy_cost_weight:
             reward = reward + self.energy_term(info, reward.shape)
         if self.slip_cost_weight:
             reward = reward + self.energy_term(info, reward.shape, "reward_slip")
+        if self.action_rate_cost_weight:
+            reward = reward + self.energy_term(info, reward.shape, "reward_action_rate")
         return reward
 
     def _goal_reward(self, achieved_goal, desired_goal):

@@ -266,6 +266,52 @@ def test_energy_cost_is_the_actuator_power_off_by_default(task):
         gym.make(env_id, energy_cost_weight=-1.0)
 
 
+@pytest.mark.parametrize("task", ["forward", "command", "reach"])
+def test_action_rate_cost_is_the_squared_change_of_the_clipped_action(task):
+    """action_rate_cost_weight: reward = the task's reward - weight * sum_k (a_k - a_k,prev)^2 of the clipped
+    actions, a_prev = 0 after every reset (the vector env's autoreset rows too), in the single and the vector env
+    alike; at its default 0 neither the reward nor the info keys change. Reach's compute_reward (HER) adds it."""
+    env_id = f"snake_env/{TASKS[task].id_prefix}5-v{TASKS[task].version}"
+    rng = np.random.default_rng(3)
+    actions = rng.uniform(-1.6, 1.6, (40, 4))  # beyond [-1, 1] too: the cost is on what the motors were sent
+    weight = 0.3
+    plain, costly = gym.make(env_id), gym.make(env_id, action_rate_cost_weight=weight)
+    vec = gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", action_rate_cost_weight=weight)
+    for seed in (2, 5):  # the second episode starts again from a_prev = 0
+        plain.reset(seed=seed)
+        costly.reset(seed=seed)
+        vec.reset(seed=seed)
+        previous = np.zeros(4)
+        for action in actions:
+            *_, reward, _, _, info = plain.step(action)
+            *_, cost_reward, _, _, cost_info = costly.step(action)
+            _, vec_reward, _, _, vec_info = vec.step(action[None])
+            clipped = np.clip(action, -1.0, 1.0)
+            expected = -weight * np.sum((clipped - previous) ** 2)
+            previous = clipped
+            assert "reward_action_rate" not in info
+            assert cost_info["reward_action_rate"] == pytest.approx(expected, rel=1e-12, abs=1e-15)
+            assert cost_reward == reward + cost_info["reward_action_rate"] and vec_reward[0] == cost_reward
+            assert vec_info["reward_action_rate"][0] == cost_info["reward_action_rate"]
+    # a partial reset (the vector env's autoreset rows) starts only those rows again from a_prev = 0
+    pair = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", action_rate_cost_weight=weight)
+    pair.reset(seed=0)
+    first, second = np.clip(actions[:2], -1.0, 1.0)
+    pair.step(np.stack([first, first]))
+    pair.reset(options={"reset_mask": np.array([True, False])})
+    _, _, _, _, pair_info = pair.step(np.stack([second, second]))
+    assert pair_info["reward_action_rate"][0] == pytest.approx(-weight * np.sum(second ** 2), rel=1e-12)
+    assert pair_info["reward_action_rate"][1] == pytest.approx(-weight * np.sum((second - first) ** 2), rel=1e-12)
+    if task == "reach":
+        # HER's relabelling: the stored step's cost comes back from its info
+        obs, *_ = costly.reset(seed=7)
+        obs, reward, _, _, info = costly.step(actions[0])
+        relabelled = costly.unwrapped.compute_reward(obs["achieved_goal"], obs["desired_goal"], info)
+        assert relabelled == reward and info["reward_action_rate"] < 0.0
+    with pytest.raises(ValueError, match="action_rate_cost_weight must be a finite number >= 0"):
+        gym.make(env_id, action_rate_cost_weight=-1.0)
+
+
 def test_reach_terminates_on_success_and_reports_it():
     env = gym.make("snake_env/SnakeReach5-v1")
     obs, _ = env.reset(seed=0)
