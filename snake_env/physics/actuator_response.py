@@ -27,6 +27,11 @@ whose env step misses that balance, is undone as a whole env step (the module do
 :mod:`snake_env.physics.stepping`): its state and its lag state are those before
 the step.
 
+On wheels that slide (``wheel_model="sliding"``, :mod:`snake_env.physics.sliding_wheels`) each
+sim_dt substep is one step of that physics (its own 1 ms time-stepping substeps and refinement inside),
+under the held torque above; its summed work includes the friction's, and an env step undone restores
+the wheels' own state (generalized velocities, impulses, slip) and the step's observation as well.
+
 Both at 0 (the default of every preset) is the instant response of the physics
 before them, bit for bit: the env then takes the one-call path and this module
 is not used.
@@ -99,12 +104,42 @@ class ActuatorResponse(InstantPhysics):
         self.previous_command = np.zeros(shape)
         self.torque = np.zeros(shape)  # the lag's state at the end of the last substep
         self.held = np.zeros(shape)
+        # sliding wheels: each substep a step of their physics of sim_dt (module doc); None: the RK4 substep
+        from .sliding_wheels import SlidingWheelPhysics  # here: it imports the config, which imports this module
+
+        self.wheels = (SlidingWheelPhysics(config, self.substep_params, num_envs)
+                       if config.wheel_model == "sliding" else None)
+        if self.wheels is not None:
+            self.reports_slip = True  # the env reads which wheels slid from ``slip`` (SlidingWheelPhysics)
+            self.slip = self.wheels.slip
 
     def reset(self, rows, noise, rng):
         self.previous_command[rows] = 0.0
         self.torque[rows] = 0.0
         self.held[rows] = 0.0
+        if self.wheels is not None:
+            return self.wheels.reset(rows, noise, rng)
         return super().reset(rows, noise, rng)
+
+    def observe(self, q, u):
+        return super().observe(q, u) if self.wheels is None else self.wheels.observe(q, u)
+
+    def set_state(self, q, u) -> None:
+        """Put every row at (q, u) (sliding wheels: gripping); the lag's state is kept."""
+        if self.wheels is not None:
+            self.wheels.set_state(q, u)
+
+    def wheel_lateral_forces(self, q, u, torques, out, scale) -> None:
+        if self.wheels is None:
+            super().wheel_lateral_forces(q, u, torques, out, scale)
+        else:
+            self.wheels.wheel_lateral_forces(q, u, self.held, out, scale)
+
+    def _substep(self, q, u, held, obs, aux, forces, scale) -> None:
+        if self.wheels is None:
+            step_inplace(self.substep_params, q, u, held, obs, aux, forces, scale)
+        else:
+            self.wheels.step(q, u, held, obs, aux, forces, scale)
 
     def bind_step(self, q, u, command, obs, aux, forces=None, scale=None):
         return functools.partial(self.step, q, u, command, obs, aux, forces, scale)
@@ -130,6 +165,9 @@ class ActuatorResponse(InstantPhysics):
         substeps' (each from its held torque through the motor's band and the traction scale)."""
         q0, u0 = q.copy(), u.copy()
         saved = self.previous_command.copy(), self.torque.copy(), self.held.copy()
+        if self.wheels is not None:
+            wheels_saved = self.wheels.save_state()
+            obs0, aux0 = obs.copy(), aux.copy()
         x0, y0, k0 = aux[:, AUX_X].copy(), aux[:, AUX_Y].copy(), aux[:, AUX_KINETIC].copy()
         work = np.zeros(q.shape[0])
         refinements = np.zeros(q.shape[0])
@@ -137,7 +175,7 @@ class ActuatorResponse(InstantPhysics):
         energy = np.zeros(q.shape[0])
         for j in range(self.frame_skip):
             held = self.substep_torques(command, j)
-            step_inplace(self.substep_params, q, u, held, obs, aux, forces, scale)
+            self._substep(q, u, held, obs, aux, forces, scale)
             energy += aux[:, AUX_MOTOR_ENERGY]
             work += aux[:, AUX_WORK]
             np.maximum(refinements, aux[:, AUX_REFINEMENTS], out=refinements)
@@ -162,6 +200,9 @@ class ActuatorResponse(InstantPhysics):
             q[rows], u[rows] = q0[rows], u0[rows]
             for array, before in zip((self.previous_command, self.torque, self.held), saved):
                 array[rows] = before[rows]
+            if self.wheels is not None:
+                self._undo_sliding(rows, wheels_saved, obs, aux, obs0, aux0, failed, refinements, forces, scale)
+                return
             row_obs, row_aux = observe(self.params, q[rows], u[rows])
             obs[rows] = row_obs.reshape(rows.size, -1)
             row_aux = row_aux.reshape(rows.size, -1)
@@ -172,3 +213,17 @@ class ActuatorResponse(InstantPhysics):
                 row_forces, row_scale = forces[rows], scale[rows]
                 wheel_lateral_forces(self.params, q[rows], u[rows], self.held[rows], row_forces, row_scale)
                 forces[rows], scale[rows] = row_forces, row_scale
+
+    def _undo_sliding(self, rows, wheels_saved, obs, aux, obs0, aux0, failed, refinements, forces, scale) -> None:
+        """Sliding wheels: the rows' wheel state, observation and aux row of before the step (a state whose
+        wheels may slide has no observation from (q, u) alone), velocity and work 0, the failure's code."""
+        self.wheels.restore_state(wheels_saved, rows)
+        obs[rows] = obs0[rows]
+        row_aux = aux0[rows]
+        row_aux[:, [AUX_VX, AUX_VY, AUX_WORK, AUX_MOTOR_ENERGY, AUX_RESIDUAL]] = 0.0
+        row_aux[:, AUX_FAILED] = failed[rows]
+        row_aux[:, AUX_REFINEMENTS] = refinements[rows]
+        aux[rows] = row_aux
+        if forces is not None:
+            forces[rows] = self.wheels.impulse[rows] / self.wheels.last_h[rows, None]
+            scale[rows] = 1.0

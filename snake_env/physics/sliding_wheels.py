@@ -21,6 +21,7 @@ joint, runs away or misses the work-energy balance (friction's work included) wi
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -59,7 +60,11 @@ class SlidingWheelPhysics:
     def __init__(self, config, params, num_envs: int):
         self.config = config
         self.params = params
-        wheels = sliding_wheels(config)
+        # the motor's response in time (torque_lag, control_latency) is ActuatorResponse's, around this physics,
+        # which then steps one sim_dt under the torque held over it
+        instant = config if config.responds_instantly else dataclasses.replace(config, torque_lag=0.0,
+                                                                               control_latency=0.0)
+        wheels = sliding_wheels(instant)
         self.model = wheels.model
         self.constants = wheels.compiled_constants()
         self.method = sliding_step.solve_method(wheels.rotor)  # the friction solve (sliding_step.advance)
@@ -93,6 +98,15 @@ class SlidingWheelPhysics:
         self.qdot[:] = consistent_qdot(self.model, np.asarray(q, np.float64), np.asarray(u, np.float64))
         self.impulse[:] = 0.0
         self.slip[:] = False
+
+    def save_state(self) -> tuple:
+        """Copies of the rows' own state beyond (q, u): generalized velocities, impulses, slip, lateral
+        velocities and last substep (restore_state puts rows of it back)."""
+        return tuple(array.copy() for array in (self.qdot, self.impulse, self.slip, self.lateral, self.last_h))
+
+    def restore_state(self, saved: tuple, rows) -> None:
+        for array, before in zip((self.qdot, self.impulse, self.slip, self.lateral, self.last_h), saved):
+            array[rows] = before[rows]
 
     def observe(self, q, u):
         """(obs, aux) of states (q, u) whose wheels grip (the env's own observation of them)."""
