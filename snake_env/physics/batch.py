@@ -8,17 +8,12 @@ the envs (:class:`snake_env.envs.core.SnakeBatch`) step any of them the same way
 
 from __future__ import annotations
 
-from .actuator_response import ActuatorResponse
 from .randomization import RandomizedRobots, one_robot
-from .sliding_wheels import SlidingWheelPhysics
 from .stepping import PhysicsParams
 
 
 def batch_physics(config, params: PhysicsParams, num_envs: int):
     """The batch physics of ``num_envs`` rows of ``config`` (built as ``params``)."""
-    if config.wheel_model == "sliding":
-        return SlidingWheelPhysics(config, params, num_envs) if config.responds_instantly else \
-            ActuatorResponse(config, params, num_envs)
     if config.randomized:
         return RandomizedRobots(config, num_envs)
     return one_robot(config, params, num_envs)

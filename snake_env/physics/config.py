@@ -217,9 +217,6 @@ class PhysicsConfig:
         if self.actuator == "ideal":  # a torque source has no current limit to brake past
             object.__setattr__(self, "back_emf_braking", False)
         latency_substeps(self.control_latency, self.sim_dt, self.frame_skip)  # one-line ValueError if not whole
-        if self.wheel_model == "sliding" and self.randomize not in (None, False):
-            raise ValueError(f"wheel_model='sliding' (the default) takes no randomize yet (None), got "
-                             f"randomize={self.randomize!r}; wheel_model='no_slip' takes it")
         object.__setattr__(self, "_motor", resolve_actuator(self.actuator, self.stall_torque, self.no_load_speed,
                                                             self.torque_limit))
         object.__setattr__(self, "_randomize", resolve_randomize(

@@ -145,10 +145,15 @@ def stiffest_robot(config, ranges: dict):
 
 
 def one_robot(config, params, num_envs: int = 1):
-    """The batch physics of one robot's rows: instant commands, or a motor response in time."""
-    if config.responds_instantly:
-        return InstantPhysics(config, params, num_envs)
-    return ActuatorResponse(config, params, num_envs)
+    """The batch physics of one robot's rows: instant commands (on sliding wheels, their physics), or a motor
+    response in time (on either wheels)."""
+    if not config.responds_instantly:
+        return ActuatorResponse(config, params, num_envs)
+    if config.wheel_model == "sliding":
+        from .sliding_wheels import SlidingWheelPhysics  # here: it imports the config, which imports this module
+
+        return SlidingWheelPhysics(config, params, num_envs)
+    return InstantPhysics(config, params, num_envs)
 
 
 class RandomizedRobots:
@@ -163,11 +168,15 @@ class RandomizedRobots:
         self.ranges = config.randomized
         stiffest_robot(config, self.ranges).build()  # an explicit sim_dt too long for a drawable robot: refused now
         _, nominal = config.build()
-        self.rows = [one_robot(config, nominal) for _ in range(num_envs)]
+        plain = dataclasses.replace(config, randomize=None)  # the nominal robot until each row's first reset
+        self.rows = [one_robot(plain, nominal) for _ in range(num_envs)]
         self.grip = np.tile(config.grip(), (num_envs, 1))
         self.wheel_load = np.tile(config.wheel_load(), (num_envs, 1))
         n = config.n_links
         self.draws = {name: np.zeros((num_envs, n) if name in PER_LINK else num_envs) for name in self.ranges}
+        # sliding wheels say which wheels slid; the env reads this array, which each row's step fills in
+        self.reports_slip = config.wheel_model == "sliding"
+        self.slip = np.zeros((num_envs, n), np.bool_)
 
     def reset(self, rows, noise, rng):
         """Draw a robot for each row of ``rows`` and put it at its start state from ``noise`` (rows, n+2);
@@ -182,7 +191,15 @@ class RandomizedRobots:
             for name, value in drawn.items():
                 self.draws[name][b] = value
             parts.append(self.rows[b].reset(_FIRST, noise[i:i + 1], rng))
+            self.slip[b] = False
         return tuple(np.concatenate(arrays) for arrays in zip(*parts))
+
+    def set_state(self, q, u) -> None:
+        """Put every row at (q, u): a row with a state of its own beyond them (sliding wheels) grips."""
+        for b, row in enumerate(self.rows):
+            if hasattr(row, "set_state"):
+                row.set_state(q[b:b + 1], u[b:b + 1])
+        self.slip[:] = False
 
     def held_torques(self, torques):
         """The torque each row held over its last substep (the commanded one without a lag or latency)."""
@@ -197,6 +214,8 @@ class RandomizedRobots:
             r = slice(b, b + 1)
             grip = (None, None) if forces is None else (forces[r], scale[r])
             row.step(q[r], u[r], torques[r], obs[r], aux[r], *grip)
+            if self.reports_slip:
+                self.slip[b] = row.slip[0]
 
     def observe(self, q, u):
         pairs = [row.observe(q[b:b + 1], u[b:b + 1]) for b, row in enumerate(self.rows)]

@@ -44,10 +44,11 @@ def test_reduced_fuzz_with_lag_latency_and_randomized_robots_leaks_nothing():
     ({"rotor_inertia": 0.005}, 16, 5),  # the same on the default sliding wheels (their null-space solve)
     ({"wheel_model": "no_slip"}, 32, 4),  # v3's no-slip wheels under the traction limit (the default slides)
     ({"torque_lag": 0.02, "control_latency": 0.02}, 16, 6),  # the motor's response in time on the sliding wheels
+    ({"torque_lag": 0.02, "randomize": True}, 16, 7),  # randomized robots on the sliding wheels, latency drawn
 ])
 def test_reduced_fuzz_with_rotors_or_either_wheels_leaks_nothing(extra, num_envs, seed):
     """Rotor inertia on either wheels, the no-slip wheels (the test above runs the default sliding ones), and a
-    torque lag and latency on the sliding wheels (their substep-by-substep step), on
+    torque lag and latency or randomized robots on the sliding wheels (substep by substep, row by row), on
     the cells where v0 leaked, with the substeps the env picks: every step reported as valid is finite, balanced
     and unfolded."""
     cells = [c for c in fuzz.matrix() if not c["paper_model"]

@@ -18,11 +18,12 @@ def drawn(info):
     return {key[len("randomized_"):]: value for key, value in info.items() if key.startswith("randomized_")}
 
 
-def test_draws_are_reproducible_by_seed_and_differ_between_seeds(rng):
+@pytest.mark.parametrize("wheel_model", ["no_slip", "sliding"])
+def test_draws_are_reproducible_by_seed_and_differ_between_seeds(rng, wheel_model):
     actions = rng.uniform(-1, 1, (30, 4))
     runs = []
     for seed in (7, 7, 8):
-        env = SnakeEnv(wheel_model="no_slip", n_links=5, randomize=True)
+        env = SnakeEnv(wheel_model=wheel_model, n_links=5, randomize=True)
         obs, info = env.reset(seed=seed)
         trajectory = [obs] + [env.step(a)[0] for a in actions]
         runs.append((drawn(info), np.array(trajectory)))
@@ -58,23 +59,27 @@ def test_draws_stay_within_their_bounds():
     assert np.all(masses.std(axis=1) > 0.0)
 
 
-def test_each_row_is_the_robot_it_reports(rng):
-    """A randomized vector env's row steps bit for bit like a single env built with the drawn values."""
-    vec = SnakeVectorEnv(wheel_model="no_slip", num_envs=3, n_links=5, randomize=True)
+@pytest.mark.parametrize("wheel_model", ["no_slip", "sliding"])
+def test_each_row_is_the_robot_it_reports(rng, wheel_model):
+    """A randomized vector env's row steps bit for bit like a single env built with the drawn values (on sliding
+    wheels, the same wheels slide)."""
+    vec = SnakeVectorEnv(wheel_model=wheel_model, num_envs=3, n_links=5, randomize=True)
     _, info = vec.reset(seed=3)
     q, u = vec.state
     rows = []
     for b in range(3):
         values = {name: value[b] for name, value in drawn(info).items()}
         strength = values["stall_torque"]  # the servo preset's limit equals its stall torque
-        env = SnakeEnv(wheel_model="no_slip", n_links=5, mass=list(values["mass"]), inertia=list(values["inertia"]),
+        env = SnakeEnv(wheel_model=wheel_model, n_links=5, mass=list(values["mass"]), inertia=list(values["inertia"]),
                        stall_torque=strength, torque_limit=strength, no_load_speed=values["no_load_speed"],
                        wheel_damping=float(values["wheel_damping"]), wheel_friction=float(values["wheel_friction"]),
                        control_latency=float(values["control_latency"]))
         env.reset(seed=0)
         env.set_state(q[b], u[b])
         rows.append(env)
-    assert_rows_step_like_singles(vec, rows, rng, 20, ["wheel_lateral_force"])
+    assert_rows_step_like_singles(vec, rows, rng, 20, ["wheel_lateral_force", "wheel_slip"])
+    if wheel_model == "sliding":
+        assert any(float(values) > 0.0 for values in info["randomized_control_latency"])  # a lagging row too
 
 
 def test_off_by_default_and_named_ranges_draw_only_those():

@@ -154,8 +154,10 @@ def test_vector_rows_equal_single_envs_and_autoreset_clears_the_lag():
     np.testing.assert_array_equal(response.previous_command, 0.0)
 
 
-def test_sliding_wheels_take_a_lag_but_not_yet_randomize():
-    assert PhysicsConfig(torque_lag=0.01, control_latency=0.01).wheel_model == "sliding"
-    with pytest.raises(ValueError, match="takes no randomize") as error:
-        PhysicsConfig(torque_lag=0.01, randomize=True)
+def test_sliding_wheels_take_a_lag_and_randomized_robots():
+    """The default wheels take every motor-response and randomization setting (the no-slip wheels' set)."""
+    config = PhysicsConfig(torque_lag=0.01, control_latency=0.01, randomize=True)
+    assert config.wheel_model == "sliding" and "control_latency" in config.randomized
+    with pytest.raises(ValueError, match="control_latency must be a whole number") as error:
+        PhysicsConfig(control_latency=0.015)
     assert "\n" not in str(error.value)

@@ -162,7 +162,6 @@ def test_set_state_restarts_with_gripping_wheels():
     (dict(wheel_model="slide"), "wheel_model must be one of"),
     (dict(wheel_model="sliding", wheel_friction=None), "wheel_model='sliding' needs wheel_friction"),
     (dict(wheel_model="sliding", control_latency=0.05), "a latency longer than a step"),
-    (dict(randomize=True), r"wheel_model='sliding' \(the default\) takes no randomize .*; wheel_model='no_slip' takes"),
 ])
 def test_bad_settings_are_one_line_errors(kwargs, message):
     with pytest.raises(ValueError, match=message) as error:
