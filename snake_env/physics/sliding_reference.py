@@ -31,11 +31,6 @@ def sliding_wheels(config: PhysicsConfig, slip_speed: float = 1e-3) -> SlidingWh
     if config.wheel_friction is None:
         raise ValueError("wheel_friction must be a number > 0 for the sliding-wheel model (None: unlimited grip, "
                          "the no-slip model itself)")
-    if not config.responds_instantly:
-        raise ValueError("torque_lag and control_latency must be 0 for the sliding-wheel model, got "
-                         f"{config.torque_lag!r} and {config.control_latency!r}")
-    if config.randomized:
-        raise ValueError("randomize must be None for the sliding-wheel model")
     model, params = config.build()
     no_load = math.inf if params.inverse_no_load_speed == 0.0 else 1.0 / params.inverse_no_load_speed
     return SlidingWheels(model, float(config.wheel_friction), slip_speed, stall_torque=params.stall_torque,
@@ -48,6 +43,12 @@ class SlidingSnake:
     """One snake of ``config`` on sliding wheels, with the env's observation and action conventions."""
 
     def __init__(self, config: PhysicsConfig, slip_speed: float = 1e-3):
+        # this reference holds each command over dt itself: no motor response in time, one robot
+        if not config.responds_instantly:
+            raise ValueError("torque_lag and control_latency must be 0 for the sliding-wheel model, got "
+                             f"{config.torque_lag!r} and {config.control_latency!r}")
+        if config.randomized:
+            raise ValueError("randomize must be None for the sliding-wheel model")
         self.config = config
         self.wheels = sliding_wheels(config, slip_speed)
         self.n = config.n_links

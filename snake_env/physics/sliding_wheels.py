@@ -21,7 +21,6 @@ joint, runs away or misses the work-energy balance (friction's work included) wi
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 
@@ -60,11 +59,9 @@ class SlidingWheelPhysics:
     def __init__(self, config, params, num_envs: int):
         self.config = config
         self.params = params
-        # the motor's response in time (torque_lag, control_latency) is ActuatorResponse's, around this physics,
-        # which then steps one sim_dt under the torque held over it
-        instant = config if config.responds_instantly else dataclasses.replace(config, torque_lag=0.0,
-                                                                               control_latency=0.0)
-        wheels = sliding_wheels(instant)
+        # (a motor response in time, torque_lag and control_latency, is ActuatorResponse's, around this physics:
+        # it steps one sim_dt at a time under the torque held over it)
+        wheels = sliding_wheels(config)
         self.model = wheels.model
         self.constants = wheels.compiled_constants()
         self.method = sliding_step.solve_method(wheels.rotor)  # the friction solve (sliding_step.advance)
