@@ -201,7 +201,7 @@ class ActuatorResponse(InstantPhysics):
             for array, before in zip((self.previous_command, self.torque, self.held), saved):
                 array[rows] = before[rows]
             if self.wheels is not None:
-                self._undo_sliding(rows, wheels_saved, obs, aux, obs0, aux0, failed, refinements, forces, scale)
+                self._undo_sliding(rows, wheels_saved, q, u, obs, aux, obs0, aux0, failed, refinements, forces, scale)
                 return
             row_obs, row_aux = observe(self.params, q[rows], u[rows])
             obs[rows] = row_obs.reshape(rows.size, -1)
@@ -214,7 +214,8 @@ class ActuatorResponse(InstantPhysics):
                 wheel_lateral_forces(self.params, q[rows], u[rows], self.held[rows], row_forces, row_scale)
                 forces[rows], scale[rows] = row_forces, row_scale
 
-    def _undo_sliding(self, rows, wheels_saved, obs, aux, obs0, aux0, failed, refinements, forces, scale) -> None:
+    def _undo_sliding(self, rows, wheels_saved, q, u, obs, aux, obs0, aux0, failed, refinements, forces,
+                      scale) -> None:
         """Sliding wheels: the rows' wheel state, observation and aux row of before the step (a state whose
         wheels may slide has no observation from (q, u) alone), velocity and work 0, the failure's code."""
         self.wheels.restore_state(wheels_saved, rows)
@@ -224,6 +225,5 @@ class ActuatorResponse(InstantPhysics):
         row_aux[:, AUX_FAILED] = failed[rows]
         row_aux[:, AUX_REFINEMENTS] = refinements[rows]
         aux[rows] = row_aux
-        if forces is not None:
-            forces[rows] = self.wheels.impulse[rows] / self.wheels.last_h[rows, None]
-            scale[rows] = 1.0
+        if forces is not None:  # from the restored impulses (the other rows' are the last piece's, unchanged)
+            self.wheels.wheel_lateral_forces(q, u, self.held, forces, scale)

@@ -96,14 +96,16 @@ class SlidingWheelPhysics:
         self.impulse[:] = 0.0
         self.slip[:] = False
 
+    # the rows' own state beyond (q, u): generalized velocities, impulses, slip, lateral velocities, last substep
+    OWN_STATE = ("qdot", "impulse", "slip", "lateral", "last_h")
+
     def save_state(self) -> tuple:
-        """Copies of the rows' own state beyond (q, u): generalized velocities, impulses, slip, lateral
-        velocities and last substep (restore_state puts rows of it back)."""
-        return tuple(array.copy() for array in (self.qdot, self.impulse, self.slip, self.lateral, self.last_h))
+        """Copies of :attr:`OWN_STATE` (restore_state puts rows of it back)."""
+        return tuple(getattr(self, name).copy() for name in self.OWN_STATE)
 
     def restore_state(self, saved: tuple, rows) -> None:
-        for array, before in zip((self.qdot, self.impulse, self.slip, self.lateral, self.last_h), saved):
-            array[rows] = before[rows]
+        for name, before in zip(self.OWN_STATE, saved):
+            getattr(self, name)[rows] = before[rows]
 
     def observe(self, q, u):
         """(obs, aux) of states (q, u) whose wheels grip (the env's own observation of them)."""

@@ -115,7 +115,7 @@ def test_a_failed_step_is_undone_with_its_lag_and_wheel_state():
     env = started_env(1, torque_lag=0.02)
     rng = np.random.default_rng(3)
     for _ in range(5):  # wheels moving and sliding before the failing step
-        env.step(rng.uniform(-1, 1, 4))
+        *_, before = env.step(rng.uniform(-1, 1, 4))
     batch = env.unwrapped._batch
     q0, obs0 = batch.q.copy(), batch.physics_obs.copy()
     torque0, qdot0, impulse0 = (batch.physics.torque.copy(), batch.physics.wheels.qdot.copy(),
@@ -131,6 +131,7 @@ def test_a_failed_step_is_undone_with_its_lag_and_wheel_state():
     np.testing.assert_array_equal(batch.physics.torque, torque0)
     np.testing.assert_array_equal(batch.physics.wheels.qdot, qdot0)
     np.testing.assert_array_equal(batch.physics.wheels.impulse, impulse0)
+    np.testing.assert_array_equal(info["wheel_lateral_force"], before["wheel_lateral_force"])  # the restored ones
 
 
 def test_vector_rows_equal_single_envs_and_autoreset_clears_the_lag():
