@@ -80,6 +80,7 @@ class SlidingWheelPhysics:
         self.slip = np.zeros((B, n), np.bool_)
         self.lateral = np.zeros((B, n))  # m/s: the wheels' lateral velocities at the last substep's end
         self.last_h = np.full(B, params.dt / self.substeps)
+        self._buffers = None  # the step's work arrays (_step_buffers)
 
     # ------------------------------------------------------------------ state
     def reset(self, rows, noise, rng):
@@ -126,53 +127,67 @@ class SlidingWheelPhysics:
         if stepping.background_compile_running():  # the first step of a process whose row kernel compiles there
             self._compile_bookkeeping(q, u, obs, aux)
             stepping.await_background_compile()
-        q0, qdot0, impulse0, lateral0 = q.copy(), self.qdot.copy(), self.impulse.copy(), self.lateral.copy()
-        cm0 = self.center_of_mass(q0)
-        substeps = np.full(B, self.substeps, np.int64)
-        stats = np.zeros((B, 5))
-        slid = np.zeros((B, n))
-        kinetic = np.zeros((B, 2))
-        code = np.zeros(B)
-        refinements = np.zeros(B)
-        residual = np.zeros(B)
-        rows = np.arange(B)
+        w = self._step_buffers(B, n)
+        q0, qdot0, impulse0, lateral0, cm0 = w["q0"], w["qdot0"], w["impulse0"], w["lateral0"], w["cm0"]
+        substeps, h, stats, slid, kinetic = w["substeps"], w["h"], w["stats"], w["slid"], w["kinetic"]
+        code, refinements, residual, rows = w["code"], w["refinements"], w["residual"], w["rows"]
+        # the pre-step state (the undo of a failed row), the CMs and zeroed counters, in one compiled call: a single
+        # env's step spent about a third of its time in the numpy calls that did this
+        _begin(q, self.qdot, self.impulse, self.lateral, q0, qdot0, impulse0, lateral0, cm0, self.half_length,
+               self.mass, self.substeps, dt, substeps, h, stats, slid, kinetic, code, refinements, residual)
         commands = np.ascontiguousarray(torques, dtype=np.float64)
         for level in range(params.max_refinements + 1):
-            h = dt / substeps
             ok = sliding_step.ADVANCE_ROWS[self.method](q, self.qdot, commands, *self.constants, h, substeps, rows,
                                                         self.impulse, stats, slid, self.lateral, kinetic)
-            unsettled = rows[~ok[rows]]
-            if unsettled.size:  # the fast friction solve did not settle: those rows again by the Delassus solve
+            if not ok.all():  # the fast friction solve did not settle: those rows again by the Delassus solve
+                unsettled = rows[~ok[rows]]
                 q[unsettled], self.qdot[unsettled] = q0[unsettled], qdot0[unsettled]
                 self.impulse[unsettled], self.lateral[unsettled] = impulse0[unsettled], lateral0[unsettled]
                 stats[unsettled], slid[unsettled] = 0.0, 0.0
                 ok[unsettled] = sliding_step.ADVANCE_ROWS[2](q, self.qdot, commands, *self.constants, h, substeps,
                                                              unsettled, self.impulse, stats, slid, self.lateral,
                                                              kinetic)[unsettled]
-            failing = rows[_verdicts(q, self.qdot, rows, ok, h, stats, kinetic, code, residual,
-                                     params.energy_tolerance, params.energy_floor)]
-            if failing.size == 0:
+            failed = _verdicts(q, self.qdot, rows, ok, h, stats, kinetic, code, residual, params.energy_tolerance,
+                               params.energy_floor)
+            if not failed.any():
                 break
+            failing = rows[failed]
             q[failing], self.qdot[failing] = q0[failing], qdot0[failing]
             self.impulse[failing], self.lateral[failing] = impulse0[failing], lateral0[failing]
             if level == params.max_refinements:  # a simulation failure: the pre-step state is kept
                 break
             stats[failing], slid[failing], code[failing] = 0.0, 0.0, 0.0
             substeps[failing] *= 2
+            h[failing] = dt / substeps[failing]
             refinements[failing] += 1
             rows = failing
-        self.last_h = dt / substeps
+        self.last_h[:] = h
         _finish(q, self.qdot, cm0, kinetic, stats, code, refinements, residual, dt, params.include_position,
                 self.half_length, self.mass, self.lateral, sliding_step.SLIDE_SPEED, obs, u, aux, self.slip)
         if forces is not None:
-            forces[:] = self.impulse / self.last_h[:, None]
+            np.divide(self.impulse, self.last_h[:, None], out=forces)
             scale[:] = 1.0
+
+    def _step_buffers(self, B: int, n: int) -> dict:
+        """The step's work arrays for B rows, made once (a step of the same B reuses them)."""
+        if self._buffers is None or self._buffers["rows"].shape[0] != B:
+            self._buffers = {"q0": np.empty((B, n + 2)), "qdot0": np.empty((B, n + 2)), "impulse0": np.empty((B, n)),
+                             "lateral0": np.empty((B, n)), "cm0": np.empty((B, 2)),
+                             "substeps": np.empty(B, np.int64), "h": np.empty(B), "stats": np.empty((B, 5)),
+                             "slid": np.empty((B, n)), "kinetic": np.empty((B, 2)), "code": np.empty(B),
+                             "refinements": np.empty(B), "residual": np.empty(B), "rows": np.arange(B)}
+        return self._buffers
 
     def _compile_bookkeeping(self, q, u, obs, aux) -> None:
         """Compile the step's kernels other than the row kernel (:func:`_centers`, :func:`_verdicts`,
         :func:`_finish`) by calling them on no row, with the argument types of :meth:`step`'s calls."""
         none, rows = np.zeros((0, 2)), np.zeros(0, np.int64)
         cm = self.center_of_mass(q[:0])
+        n = q.shape[1] - 2
+        _begin(q[:0], self.qdot[:0], self.impulse[:0], self.lateral[:0], q[:0].copy(), self.qdot[:0].copy(),
+               self.impulse[:0].copy(), self.lateral[:0].copy(), cm, self.half_length, self.mass, self.substeps,
+               self.params.dt, rows.copy(), np.zeros(0), np.zeros((0, 5)), np.zeros((0, n)), none.copy(), np.zeros(0),
+               np.zeros(0), np.zeros(0))
         _verdicts(q[:0], self.qdot[:0], rows, np.ones(0, np.bool_), np.ones(0), np.zeros((0, 5)), none, np.zeros(0),
                   np.zeros(0), self.params.energy_tolerance, self.params.energy_floor)
         _finish(q[:0], self.qdot[:0], cm, none, np.zeros((0, 5)), np.zeros(0), np.zeros(0), np.zeros(0),
@@ -215,6 +230,27 @@ def _center(q, half_length, mass):
 def _centers(q, half_length, mass, out):
     for b in range(q.shape[0]):
         out[b, 0], out[b, 1] = _center(q[b], half_length, mass)
+
+
+@njit(cache=True, nogil=True)
+def _begin(q, qdot, impulse, lateral, q0, qdot0, impulse0, lateral0, cm0, half_length, mass, n_substeps, dt,
+           substeps, h, stats, slid, kinetic, code, refinements, residual):
+    """The start of a step of every row: its state before (q0, qdot0, impulse0, lateral0; a failed row goes back to
+    it), its CM (cm0, m), ``n_substeps`` substeps of h = dt / n_substeps (s) and the counters zeroed."""
+    for b in range(q.shape[0]):
+        q0[b] = q[b]
+        qdot0[b] = qdot[b]
+        impulse0[b] = impulse[b]
+        lateral0[b] = lateral[b]
+        cm0[b, 0], cm0[b, 1] = _center(q[b], half_length, mass)
+        substeps[b] = n_substeps
+        h[b] = dt / n_substeps
+        stats[b] = 0.0
+        slid[b] = 0.0
+        kinetic[b] = 0.0
+        code[b] = 0.0
+        refinements[b] = 0.0
+        residual[b] = 0.0
 
 
 @njit(cache=True, nogil=True)

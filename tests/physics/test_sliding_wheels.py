@@ -167,3 +167,38 @@ def test_bad_settings_are_one_line_errors(kwargs, message):
     with pytest.raises(ValueError, match=message) as error:
         PhysicsConfig(**kwargs)
     assert "\n" not in str(error.value)
+
+
+def test_rows_that_fail_the_check_are_refined_alone():
+    """A tight work-energy tolerance makes some rows' steps fail the check and be stepped again with halved
+    substeps: each row of a batch then equals the same row stepped alone, bit for bit (state, wheels' own state,
+    observation, aux with its refinement count and forces), each refined row's substep is halved per refinement,
+    and the batch holds both refined and unrefined rows."""
+    from snake_env.physics import AUX_REFINEMENTS
+    from snake_env.physics.sliding_wheels import SlidingWheelPhysics
+
+    config = PhysicsConfig(n_links=5, wheel_model="sliding", energy_tolerance=2e-4)
+    _, params = config.build()
+    B, n = 4, 5
+    noise = np.random.default_rng(3).uniform(-0.3, 0.3, (B, n + 2))
+    batch = SlidingWheelPhysics(config, params, B)
+    alone = [SlidingWheelPhysics(config, params, 1) for _ in range(B)]
+    q, u, obs, aux = batch.reset(np.arange(B), noise, None)
+    rows = [list(one.reset(np.arange(1), noise[b:b + 1], None)) for b, one in enumerate(alone)]
+    torques = 2.0 * np.random.default_rng(4).uniform(-1.0, 1.0, (30, B, n - 1))
+    forces, scale = np.empty((B, n)), np.empty((B, n))
+    refined = []
+    for step_torques in torques:
+        batch.step(q, u, step_torques, obs, aux, forces, scale)
+        refined.append(aux[:, AUX_REFINEMENTS].copy())
+        # each refinement halves the row's substep: dt in 40 * 2^r substeps of the last_h it reports
+        np.testing.assert_array_equal(batch.last_h, params.dt / (batch.substeps * 2 ** refined[-1].astype(np.int64)))
+        for b, one in enumerate(alone):
+            f, s = np.empty((1, n)), np.empty((1, n))
+            one.step(rows[b][0], rows[b][1], step_torques[b:b + 1], rows[b][2], rows[b][3], f, s)
+            for mine, theirs in zip((q, u, obs, aux, forces, batch.qdot, batch.impulse, batch.slip, batch.last_h),
+                                    (rows[b][0], rows[b][1], rows[b][2], rows[b][3], f, one.qdot, one.impulse,
+                                     one.slip, one.last_h)):
+                np.testing.assert_array_equal(mine[b], theirs[0])
+    refined = np.array(refined)
+    assert np.any(refined > 0) and np.any(refined == 0), refined.max()
