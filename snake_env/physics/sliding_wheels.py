@@ -139,7 +139,9 @@ class SlidingWheelPhysics:
         for level in range(params.max_refinements + 1):
             ok = sliding_step.ADVANCE_ROWS[self.method](q, self.qdot, commands, *self.constants, h, substeps, rows,
                                                         self.impulse, stats, slid, self.lateral, kinetic)
-            if not ok.all():  # the fast friction solve did not settle: those rows again by the Delassus solve
+            # rows whose fast friction solve did not settle: those again by the Delassus solve (np.count_nonzero: a
+            # tenth of .all()'s and .any()'s time on the few rows of a single env's step)
+            if np.count_nonzero(ok) < B:
                 unsettled = rows[~ok[rows]]
                 q[unsettled], self.qdot[unsettled] = q0[unsettled], qdot0[unsettled]
                 self.impulse[unsettled], self.lateral[unsettled] = impulse0[unsettled], lateral0[unsettled]
@@ -149,7 +151,7 @@ class SlidingWheelPhysics:
                                                              kinetic)[unsettled]
             failed = _verdicts(q, self.qdot, rows, ok, h, stats, kinetic, code, residual, params.energy_tolerance,
                                params.energy_floor)
-            if not failed.any():
+            if np.count_nonzero(failed) == 0:
                 break
             failing = rows[failed]
             q[failing], self.qdot[failing] = q0[failing], qdot0[failing]
