@@ -181,8 +181,9 @@ class SlidingWheelPhysics:
         return self._buffers
 
     def _compile_bookkeeping(self, q, u, obs, aux) -> None:
-        """Compile the step's kernels other than the row kernel (:func:`_centers`, :func:`_verdicts`,
-        :func:`_finish`) by calling them on no row, with the argument types of :meth:`step`'s calls."""
+        """Compile the step's kernels other than the row kernel (:func:`_centers`, :func:`_begin`,
+        :func:`_verdicts`, :func:`_finish`) by calling them on no row, with the argument types of :meth:`step`'s
+        calls."""
         none, rows = np.zeros((0, 2)), np.zeros(0, np.int64)
         cm = self.center_of_mass(q[:0])
         n = q.shape[1] - 2
