@@ -4,7 +4,7 @@ against the CPU's limit").
     python -m snake_env.benchmarks.sliding_step_profile [--env snake_env/Snake5-v4] [--envs 1024] [--steps 40]
 
 Steps a ``gym.make_vec`` vector env under uniform random actions with timers around the sliding step's
-compiled calls (the row kernel ``sliding_step.ADVANCE_ROWS``, the verdicts, the step's end), then replays
+compiled calls (the step's start, the row kernel ``sliding_step.ADVANCE_ROWS``, the verdicts, the step's end), then replays
 the row kernel on the last step's rows with the env step cut into 1, 2, 5, 10, 20 and 40 substeps of
 the same total time, which splits its time into a cost per substep and a cost per row. Times in
 microseconds per env-step (row); run it on an idle machine, timings are not asserted anywhere.
@@ -24,19 +24,26 @@ WARMUP_STEPS = 10
 
 
 class _Timed:
-    """A callable that times the calls of ``fn`` into ``totals[name]`` and remembers the last full-batch call."""
+    """A callable that times the calls of ``fn`` into ``totals[name]``; while ``keep`` is set it also keeps a copy
+    of the arguments of its last full-batch call (outside the timed steps: the copy is not the step's work)."""
 
-    def __init__(self, fn, name, totals, batch, keep=False):
-        self.fn, self.name, self.totals, self.batch, self.keep = fn, name, totals, batch, keep
+    def __init__(self, fn, name, totals, batch):
+        self.fn, self.name, self.totals, self.batch = fn, name, totals, batch
+        self.keep = False
         self.last_args = None
 
     def __call__(self, *args):
         if self.keep and len(args[-6]) == self.batch:  # every row: the step's first call, not a refinement
-            self.last_args = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+            self.last_args = _copies(args)
         start = time.perf_counter()
         out = self.fn(*args)
         self.totals[self.name] = self.totals.get(self.name, 0.0) + time.perf_counter() - start
         return out
+
+
+def _copies(args) -> list:
+    """The arguments with every array copied (a kernel call changes its arrays in place)."""
+    return [a.copy() if isinstance(a, np.ndarray) else a for a in args]
 
 
 def profile(env_id: str, num_envs: int, steps: int) -> dict:
@@ -57,31 +64,34 @@ def profile(env_id: str, num_envs: int, steps: int) -> dict:
         envs.step(rng.uniform(-1.0, 1.0, envs.action_space.shape))
     totals: dict[str, float] = {}
     kernels = sliding_step.ADVANCE_ROWS
-    row_kernel = _Timed(kernels[physics.method], "row kernel", totals, num_envs, keep=True)
-    verdicts, finish = sliding_wheels._verdicts, sliding_wheels._finish
+    row_kernel = _Timed(kernels[physics.method], "row kernel", totals, num_envs)
+    begin, verdicts, finish = sliding_wheels._begin, sliding_wheels._verdicts, sliding_wheels._finish
     try:
         sliding_step.ADVANCE_ROWS = tuple(row_kernel if i == physics.method else _Timed(k, "exact solve", totals, 0)
                                           for i, k in enumerate(kernels))
+        sliding_wheels._begin = _Timed(begin, "step's start", totals, 0)
         sliding_wheels._verdicts = _Timed(verdicts, "verdicts", totals, 0)
         sliding_wheels._finish = _Timed(finish, "step's end", totals, 0)
         start = time.perf_counter()
         for _ in range(steps):
             envs.step(rng.uniform(-1.0, 1.0, envs.action_space.shape))
         wall = time.perf_counter() - start
+        per_step = 1e6 / (steps * num_envs)
+        result = {"env": env_id, "envs": num_envs, "substeps": int(physics.substeps),
+                  "env step (us)": wall * per_step, **{f"{k} (us)": v * per_step for k, v in totals.items()}}
+        row_kernel.keep = True  # one more step, untimed, for the row kernel's arguments to replay
+        envs.step(rng.uniform(-1.0, 1.0, envs.action_space.shape))
     finally:
         sliding_step.ADVANCE_ROWS = kernels
-        sliding_wheels._verdicts, sliding_wheels._finish = verdicts, finish
+        sliding_wheels._begin, sliding_wheels._verdicts, sliding_wheels._finish = begin, verdicts, finish
         envs.close()
-    per_step = 1e6 / (steps * num_envs)
-    result = {"env": env_id, "envs": num_envs, "substeps": int(physics.substeps),
-              "env step (us)": wall * per_step, **{f"{k} (us)": v * per_step for k, v in totals.items()}}
     args = row_kernel.last_args
     h, substeps = args[-8], args[-7]
     replay = {}
     for count in REPLAY_SUBSTEPS:  # the same step time cut into `count` substeps
         best = float("inf")
         for _ in range(REPEATS):
-            call = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+            call = _copies(args)
             call[-8], call[-7] = h * substeps / count, np.full_like(substeps, count)
             start = time.perf_counter()
             kernels[physics.method](*call)
