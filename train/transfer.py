@@ -10,7 +10,9 @@ seeds 0..episodes-1); the serpenoid searched for that length on the same physics
 (``configs/serpenoid.yaml``; ``python -m snake_env.agents.search --env snake_env/Snake-vN --n-links n``
 for a new length) runs on the same episode seeds. Prints a markdown table (speed, ratio, and whether
 the run trained on that size, its gait's frequency, the share of wheel-steps outside the friction cone and,
-on wheels that slide, the share that slid); ``--plot`` draws the ratio against n. Evaluations are cached as JSON
+on wheels that slide, the share that slid); ``--plot`` draws the ratio against n. ``--version vN`` runs
+every size on another version's physics (e.g. a run trained on v3 on v4's wheels that slide), against
+the serpenoids searched on that version. Evaluations are cached as JSON
 beside ``--json`` (``<json stem>_cache/``), so a rerun only adds what is missing.
 """
 
@@ -25,14 +27,31 @@ from pathlib import Path
 from snake_env.atomic import atomic_write_text
 
 
-def _size_id(env_id: str, n: int) -> str:
-    """The forward id of length n at the version of ``env_id`` (snake_env/Snake-v3 -> snake_env/Snake12-v3)."""
-    version = env_id.rsplit("-", 1)[-1]
+def _size_id(version: str, n: int) -> str:
+    """The forward id of length n at ``version`` (v3, 12 -> snake_env/Snake12-v3)."""
     return f"snake_env/Snake{n}-{version}"
 
 
-def evaluate_sizes(run: Path, sizes: list[int], episodes: int, cache: Path) -> list[dict]:
-    """One row per size: the run's and the serpenoid's speed (m/s), their ratio, whether trained on it."""
+def run_version(run: Path) -> str:
+    """The version of the id a run was trained on (snake_env/Snake-v3 -> v3)."""
+    import yaml
+
+    return yaml.safe_load((run / "config.yaml").read_text())["env_id"].rsplit("-", 1)[-1]
+
+
+def forward_versions() -> list[str]:
+    """The versions of the generic forward id ``snake_env/Snake-vN`` in the registry (v1, v2, ...)."""
+    import gymnasium as gym
+
+    import snake_env  # noqa: F401  (registers the ids)
+
+    found = (re.fullmatch(r"snake_env/Snake-(v\d+)", env_id) for env_id in gym.registry)
+    return sorted((m[1] for m in found if m), key=lambda v: int(v[1:]))
+
+
+def evaluate_sizes(run: Path, sizes: list[int], episodes: int, cache: Path, version: str | None = None) -> list[dict]:
+    """One row per size: the run's and the serpenoid's speed (m/s), their ratio, whether trained on it;
+    on ``version``'s physics (default: the run's)."""
     import yaml
 
     from snake_env.train.evaluate import main as evaluate_main
@@ -42,6 +61,8 @@ def evaluate_sizes(run: Path, sizes: list[int], episodes: int, cache: Path) -> l
     trained = set(config.get("n_links_set") or [])
     if not trained and (m := re.search(r"Snake(\d+)-v\d+$", config["env_id"])):
         trained = {int(m[1])}
+    version = version or run_version(run)
+    cache = cache / version if version != run_version(run) else cache  # the run's own keeps its old place
     cache.mkdir(parents=True, exist_ok=True)
 
     def cached(name: str, argv: list[str]) -> dict:
@@ -53,7 +74,7 @@ def evaluate_sizes(run: Path, sizes: list[int], episodes: int, cache: Path) -> l
 
     rows = []
     for n in sizes:
-        target = env_arguments(_size_id(config["env_id"], n))
+        target = env_arguments(_size_id(version, n))
         policy = cached(f"policy_n{n}_{episodes}", [str(run), *target])
         serpenoid = cached(f"serpenoid_n{n}_{episodes}", ["--baseline", "serpenoid", *target])
         speed, reference = policy["mean_forward_velocity"], serpenoid["mean_forward_velocity"]
@@ -113,18 +134,23 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--json", required=True, help="write the rows here (the cache goes beside it)")
     parser.add_argument("--plot", help="draw the ratio against n (png, svg or pdf)")
+    parser.add_argument("--version", help="evaluate on this version's physics, e.g. v4 (default: the run's)")
     args = parser.parse_args(argv)
     run = Path(args.run)
     if not (run / "config.yaml").is_file():
         parser.exit(2, f"{parser.prog}: error: run: {run} is not a run directory (no config.yaml)\n")
     if any(n < 2 for n in args.sizes) or args.episodes < 1:
         parser.exit(2, f"{parser.prog}: error: --sizes must be integers >= 2 and --episodes >= 1\n")
+    version = args.version or run_version(run)
+    if version not in (allowed := forward_versions()):
+        parser.exit(2, f"{parser.prog}: error: --version must be one of {', '.join(allowed)}, got {args.version!r}\n")
     out = Path(args.json)
-    rows = evaluate_sizes(run, args.sizes, args.episodes, out.parent / f"{out.stem}_cache")
-    atomic_write_text(out, json.dumps({"run": str(run), "episodes": args.episodes, "rows": rows}, indent=2))
+    rows = evaluate_sizes(run, args.sizes, args.episodes, out.parent / f"{out.stem}_cache", version)
+    atomic_write_text(out, json.dumps({"run": str(run), "version": version, "episodes": args.episodes, "rows": rows},
+                                      indent=2))
     print(markdown(rows))
     if args.plot:
-        plot(rows, Path(args.plot), f"{run.name}: deterministic policy, {args.episodes} episodes per size")
+        plot(rows, Path(args.plot), f"{run.name} on {version}: deterministic policy, {args.episodes} episodes per size")
     return 0
 
 

@@ -152,6 +152,32 @@ def test_transfer_table_over_sizes(multi_n_runs, tmp_path, capsys):
     assert exit_info.value.code == 2
 
 
+def test_transfer_on_another_versions_physics(multi_n_runs, tmp_path, capsys):
+    """--version vN: every size runs on that version's id, against the serpenoid searched on it; an unknown
+    version is a one-line error that lists the registered ones."""
+    from snake_env.train.evaluate import main as eval_main
+    from snake_env.train.transfer import main as transfer_main
+
+    newest = FAMILY.rsplit("-v", 1)[1]
+    older = f"v{int(newest) - 1}"
+    out = tmp_path / "transfer.json"
+    assert transfer_main([str(multi_n_runs["ppo"]), "--sizes", "3", "--episodes", "1", "--json", str(out),
+                          "--version", older]) == 0
+    report = json.loads(out.read_text())
+    assert report["version"] == older
+    policy = json.loads((tmp_path / "transfer_cache" / older / "policy_n3_1.json").read_text())
+    assert policy["env_id"] == f"snake_env/Snake3-{older}"
+    direct = tmp_path / "serpenoid.json"
+    assert eval_main(["--baseline", "serpenoid", "--env", f"snake_env/Snake3-{older}", "--episodes", "1",
+                      "--json", str(direct)]) == 0
+    assert report["rows"][0]["serpenoid"] == json.loads(direct.read_text())["mean_forward_velocity"]
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        transfer_main([str(multi_n_runs["ppo"]), "--sizes", "3", "--json", str(out), "--version", "v99"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.count("\n") == 1 and f"{older}, v{newest}" in err
+
+
 def test_fine_tuning_starts_from_another_runs_weights(multi_n_runs, tmp_path, capsys):
     """snake-train --init-from: a JointPolicy trained on {3, 5} starts a Snake8 run with exactly its weights,
     and the run records where they came from."""
