@@ -61,8 +61,9 @@ def evaluate_sizes(run: Path, sizes: list[int], episodes: int, cache: Path, vers
     trained = set(config.get("n_links_set") or [])
     if not trained and (m := re.search(r"Snake(\d+)-v\d+$", config["env_id"])):
         trained = {int(m[1])}
-    version = version or run_version(run)
-    cache = cache / version if version != run_version(run) else cache  # the run's own keeps its old place
+    own = config["env_id"].rsplit("-", 1)[-1]
+    version = version or own
+    cache = cache / version if version != own else cache  # the run's own version keeps the cache's old place
     cache.mkdir(parents=True, exist_ok=True)
 
     def cached(name: str, argv: list[str]) -> dict:
