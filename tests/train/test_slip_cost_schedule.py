@@ -97,15 +97,19 @@ class _Record(BaseCallback):
         return True
 
 
-def test_training_envs_follow_the_schedule_and_the_eval_env_keeps_the_final_weight():
+SMALL = {"ppo": ["n_steps=32", "batch_size=32", "n_epochs=1", "policy_kwargs.net_arch=[8]"],
+         "sac": ["learning_starts=32", "buffer_size=1000", "batch_size=16", "policy_kwargs.net_arch=[8]"]}
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])  # on-policy: a rollout's steps; off-policy: every step
+def test_training_envs_follow_the_schedule_and_the_eval_env_keeps_the_final_weight(algo):
     from stable_baselines3.common.callbacks import CallbackList
 
     from snake_env.train.envs import make_vec_env, wrap_normalize
     from snake_env.train.train import build_model
 
-    config = cfg.build_config("ppo", ENV, overrides=[
-        "env_kwargs.slip_cost_weight=4.0", "env_kwargs.max_episode_steps=50", "n_steps=32", "batch_size=32",
-        "n_epochs=1", "policy_kwargs.net_arch=[8]"], n_envs=2)
+    config = cfg.build_config(algo, ENV, overrides=[
+        "env_kwargs.slip_cost_weight=4.0", "env_kwargs.max_episode_steps=50", *SMALL[algo]], n_envs=2)
     config["callback"] = [{NAME: {"start_fraction": 0.25, "end_fraction": 0.75}}]
     config = cfg.validate(config)
     venv = wrap_normalize(make_vec_env(config, 2, 0), config, training=True)
