@@ -40,7 +40,7 @@ def run_version(run: Path) -> str:
 
 
 def forward_versions() -> list[str]:
-    """The versions of the generic forward id ``snake_env/Snake-vN`` in the registry (v1, v2, ...)."""
+    """The versions of the generic forward id ``snake_env/Snake-vN`` in the registry, oldest first (v2, v3, ...)."""
     import gymnasium as gym
 
     import snake_env  # noqa: F401  (registers the ids)
