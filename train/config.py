@@ -52,7 +52,7 @@ META_DEFAULTS = {
     # several snake sizes in one run (policy JointPolicy only): a list of link counts, e.g. [5, 8, 12];
     # snake_env.train.multi_n_env pads them to the longest
     "n_links_set": None,
-    # exploration noise, RL Zoo's key: "pink" (SAC) samples rollout actions with pink noise
+    # exploration noise, RL Zoo's key: "pink" (SAC, PPO) samples rollout actions with pink noise
     # (snake_env.train.exploration)
     "noise_type": None,
     # fine-tuning: a run directory (its model.zip) or a model .zip whose policy weights start this run,

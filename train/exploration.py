@@ -1,4 +1,4 @@
-"""Temporally correlated exploration for SAC: ``noise_type: pink`` (RL Zoo's key).
+"""Temporally correlated exploration for SAC and PPO: ``noise_type: pink`` (RL Zoo's key).
 
 SAC's stochastic policy draws fresh white Gaussian noise at every control step. On a snake behind
 servo motors (v3) that noise averages out within a few steps: the joints barely move away from the
@@ -13,6 +13,12 @@ Its own SB3 distribution (``pink.sb3.PinkNoiseDist``) draws one noise vector per
 training batches too. :class:`PinkNoiseDistribution` keeps one pink process per sub-env, uses it
 only while collecting rollouts (the actor in eval mode, one row per sub-env), and leaves SB3's
 reparameterised white noise in the gradient steps, where the loss expects independent samples.
+
+PPO (:class:`PinkNoiseGaussian`): the rollout's actions take the same per-sub-env pink noise, scaled
+by the policy's std. Each step's noise is still a standard normal draw, so an action keeps the
+Gaussian's marginal law and its log-probability is the Gaussian's, which PPO's ratio uses; only the
+correlation from step to step changes, as in the paper's on-policy use of coloured noise. PPO's
+gradient steps never sample (they evaluate the stored actions).
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ import weakref
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.distributions import SquashedDiagGaussianDistribution
+from stable_baselines3.common.distributions import DiagGaussianDistribution, SquashedDiagGaussianDistribution
 
 NOISE_TYPES = ("pink",)
 
@@ -33,14 +39,31 @@ def check_noise_type(config: dict) -> None:
         return
     if value not in NOISE_TYPES:
         raise ValueError(f"noise_type must be one of {list(NOISE_TYPES)} or null, got {value!r}")
-    if config["algo"] != "sac" or config.get("policy", "MlpPolicy") not in ("MlpPolicy", "MultiInputPolicy"):
-        raise ValueError(f"noise_type {value} needs algo sac with policy MlpPolicy or MultiInputPolicy, "
-                         f"got {config['algo']} with {config.get('policy')}")
+    if config.get("policy", "MlpPolicy") not in ("MlpPolicy", "MultiInputPolicy"):
+        raise ValueError(f"noise_type {value} needs policy MlpPolicy or MultiInputPolicy, "
+                         f"got {config.get('policy')}")
     if config.get("use_sde"):
         raise ValueError(f"noise_type {value} does not combine with use_sde (gSDE draws its own noise)")
 
 
-class PinkNoiseDistribution(SquashedDiagGaussianDistribution):
+class _PinkRollouts:
+    """One pink-noise process per sub-env, drawn only while ``owner`` (an nn.Module) is in eval mode."""
+
+    def _init_pink(self, action_dim: int, n_envs: int, seq_len: int, owner, seed: int) -> None:
+        from pink.cnrl import PinkNoiseProcess
+
+        self.n_envs = n_envs
+        self.process = PinkNoiseProcess(size=(n_envs, action_dim, seq_len), rng=np.random.default_rng(seed))
+        self._owner = weakref.ref(owner)  # the owner holds this distribution: no cycle back to it
+
+    def _pink(self, mean: th.Tensor) -> th.Tensor | None:
+        """A standard-normal pink draw shaped as ``mean``, or None outside a rollout (white noise then)."""
+        if self._owner().training or mean.shape[0] != self.n_envs:
+            return None
+        return th.as_tensor(self.process.sample(), dtype=mean.dtype).reshape(mean.shape)
+
+
+class PinkNoiseDistribution(_PinkRollouts, SquashedDiagGaussianDistribution):
     """SAC's squashed Gaussian whose rollout samples take pink noise, one process per sub-env.
 
     Args:
@@ -53,26 +76,43 @@ class PinkNoiseDistribution(SquashedDiagGaussianDistribution):
 
     def __init__(self, action_dim: int, n_envs: int, seq_len: int, actor, seed: int):
         super().__init__(action_dim)
-        from pink.cnrl import PinkNoiseProcess
-
-        self.n_envs = n_envs
-        self.process = PinkNoiseProcess(size=(n_envs, action_dim, seq_len), rng=np.random.default_rng(seed))
-        self._actor = weakref.ref(actor)  # the actor holds this distribution: no cycle back to it
+        self._init_pink(action_dim, n_envs, seq_len, actor, seed)
 
     def sample(self) -> th.Tensor:
         mean = self.distribution.mean
-        if self._actor().training or mean.shape[0] != self.n_envs:
+        noise = self._pink(mean)
+        if noise is None:
             return super().sample()
-        noise = th.as_tensor(self.process.sample(), dtype=mean.dtype).reshape(mean.shape)
         self.gaussian_actions = mean + self.distribution.stddev * noise
         return th.tanh(self.gaussian_actions)
+
+
+class PinkNoiseGaussian(_PinkRollouts, DiagGaussianDistribution):
+    """PPO's diagonal Gaussian whose rollout samples take pink noise, one process per sub-env.
+
+    Args: as :class:`PinkNoiseDistribution`, with ``policy`` the PPO policy (in eval mode while
+    collecting rollouts, in train mode in its gradient steps).
+    """
+
+    def __init__(self, action_dim: int, n_envs: int, seq_len: int, policy, seed: int):
+        super().__init__(action_dim)
+        self._init_pink(action_dim, n_envs, seq_len, policy, seed)
+
+    def sample(self) -> th.Tensor:
+        mean = self.distribution.mean
+        noise = self._pink(mean)
+        if noise is None:
+            return super().sample()
+        return mean + self.distribution.stddev * noise
 
 
 def apply_exploration(model, config: dict, seq_len: int) -> None:
     """Install the configured exploration noise on a built or loaded model (a no-op without one)."""
     if config.get("noise_type") != "pink":
         return
-    actor = model.actor
     action_dim = int(np.prod(model.action_space.shape))
-    actor.action_dist = PinkNoiseDistribution(action_dim, model.n_envs, seq_len, actor,
-                                              seed=config["seed"] + 20_000)
+    seed = config["seed"] + 20_000
+    if hasattr(model, "actor"):  # SAC
+        model.actor.action_dist = PinkNoiseDistribution(action_dim, model.n_envs, seq_len, model.actor, seed=seed)
+    else:  # PPO: the policy builds its distribution from action_dist on every forward pass
+        model.policy.action_dist = PinkNoiseGaussian(action_dim, model.n_envs, seq_len, model.policy, seed=seed)
