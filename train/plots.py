@@ -136,12 +136,15 @@ def plot_speed_vs_n(learned, serpenoid, path, earlier=None) -> None:
             points = sorted(by_n.items())
             if not points:
                 continue
-            color = colors.get(algo, "tab:green")
+            color, marker = colors.get(algo, "tab:green"), "o"
+            if algo in colors and "JointPolicy" in label:  # an entry of PPO or SAC that runs the shared policy
+                color, marker = {"ppo": "tab:purple", "sac": "tab:red"}[algo], "D"
             for n, speeds in points:
-                ax.plot([n] * len(speeds), np.maximum(speeds, floor), "o", color=color, markersize=4,
+                ax.plot([n] * len(speeds), np.maximum(speeds, floor), marker, color=color, markersize=4,
                         markerfacecolor="none" if hollow else color, alpha=0.8)
             means = [max(float(np.mean(s)), floor) for _, s in points]
-            ax.plot([n for n, _ in points], means, "-" if not hollow else ":", color=color, linewidth=1.2, label=label)
+            ax.plot([n for n, _ in points], means, "-" if not hollow else ":", color=color, linewidth=1.2, label=label,
+                    marker=None if marker == "o" else marker, markersize=4)
     ax.set_xlabel("number of links n")
     ax.set_ylabel("mean forward speed of the CM (m/s)")
     ax.set_yscale("log")

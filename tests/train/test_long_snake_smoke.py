@@ -34,3 +34,20 @@ def test_shipped_config_trains_and_evaluates_on_snake12(algo, steps, tmp_path):
     assert evaluate_main([str(run_dir), "--episodes", "1", "--max-steps", "50", "--json", str(report_path)]) == 0
     report = yaml.safe_load(report_path.read_text())
     assert math.isfinite(report["mean_forward_velocity"]) and report["episodes"][0]["length"] == 50
+
+
+def test_shipped_snake30_ppo_entry_is_the_shared_policy_and_runs_another_length(tmp_path):
+    """Snake30's PPO entry is JointPolicy: it trains from the shipped config (one small rollout) and the same
+    run evaluates on Snake30 and on Snake20, which it never saw."""
+    env_id = next(env_id for env_id in newest_locomotion_ids() if env_id.startswith("snake_env/Snake30-"))
+    assert build_config("ppo", env_id)["policy"] == "JointPolicy"
+    run_dir = tmp_path / "run"
+    assert train_main(["--algo", "ppo", "--env", env_id, "--total-timesteps", "256", "--run-dir", str(run_dir),
+                       "--set", "n_envs=4", "--set", "n_steps=64", "--set", "batch_size=64",
+                       "--no-progress-bar"]) == 0
+    for other in (env_id, env_id.replace("Snake30", "Snake20")):
+        report_path = tmp_path / f"{other.split('/')[1]}.json"
+        assert evaluate_main([str(run_dir), "--env", other, "--episodes", "1", "--max-steps", "20",
+                              "--json", str(report_path)]) == 0
+        report = yaml.safe_load(report_path.read_text())
+        assert math.isfinite(report["mean_forward_velocity"]) and report["episodes"][0]["length"] == 20

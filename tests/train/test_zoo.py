@@ -36,6 +36,10 @@ def test_zoo_hyperparams_cover_our_configs_without_project_keys(algo):
             assert entry["env_wrapper"] and all(len(item) == 1 for item in entry["env_wrapper"]), env_id
         if isinstance(entry.get("policy_kwargs"), str):
             assert isinstance(eval(entry["policy_kwargs"]), dict)
+        elif entry["policy"].startswith("snake_env.train.joint_policy."):  # JointPolicy: its class and env layout
+            assert entry["policy"].endswith(".JointActorCriticPolicy" if algo == "ppo" else ".JointSACPolicy"), env_id
+            assert [name for name, _ in entry["policy_kwargs"]["layout"]][0] == "joint_angles", env_id
+            assert entry["normalize"]["norm_obs"] is False, env_id  # its features are scaled by fixed constants
         elif "policy_kwargs" in entry:  # a features extractor of ours: the class itself, for this env's layout
             from snake_env.train.extractors import GoalFrameExtractor
 
