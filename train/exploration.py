@@ -49,7 +49,8 @@ def check_noise_type(config: dict) -> None:
 class _PinkRollouts:
     """One pink-noise process per sub-env, drawn only while ``owner`` (an nn.Module) is in eval mode."""
 
-    def _init_pink(self, action_dim: int, n_envs: int, seq_len: int, owner, seed: int) -> None:
+    def __init__(self, action_dim: int, n_envs: int, seq_len: int, owner, seed: int):
+        super().__init__(action_dim)  # the SB3 distribution after this class in the MRO
         from pink.cnrl import PinkNoiseProcess
 
         self.n_envs = n_envs
@@ -70,13 +71,9 @@ class PinkNoiseDistribution(_PinkRollouts, SquashedDiagGaussianDistribution):
         action_dim: the action's size.
         n_envs: sub-envs of the rollout VecEnv (rows of a rollout batch).
         seq_len: the noise's longest correlation (control steps), the episode length as the paper sets it.
-        actor: the SAC actor (its ``training`` flag tells rollouts, False, from gradient steps, True).
+        owner: the SAC actor (its ``training`` flag tells rollouts, False, from gradient steps, True).
         seed: seed of the noise processes.
     """
-
-    def __init__(self, action_dim: int, n_envs: int, seq_len: int, actor, seed: int):
-        super().__init__(action_dim)
-        self._init_pink(action_dim, n_envs, seq_len, actor, seed)
 
     def sample(self) -> th.Tensor:
         mean = self.distribution.mean
@@ -90,13 +87,9 @@ class PinkNoiseDistribution(_PinkRollouts, SquashedDiagGaussianDistribution):
 class PinkNoiseGaussian(_PinkRollouts, DiagGaussianDistribution):
     """PPO's diagonal Gaussian whose rollout samples take pink noise, one process per sub-env.
 
-    Args: as :class:`PinkNoiseDistribution`, with ``policy`` the PPO policy (in eval mode while
+    Args: as :class:`PinkNoiseDistribution`, with ``owner`` the PPO policy (in eval mode while
     collecting rollouts, in train mode in its gradient steps).
     """
-
-    def __init__(self, action_dim: int, n_envs: int, seq_len: int, policy, seed: int):
-        super().__init__(action_dim)
-        self._init_pink(action_dim, n_envs, seq_len, policy, seed)
 
     def sample(self) -> th.Tensor:
         mean = self.distribution.mean
