@@ -21,6 +21,12 @@ def _dist(n_envs=4, action_dim=3, seq_len=256, training=False):
     return dist, actor
 
 
+def _mean_lag1(series):
+    """Mean lag-1 autocorrelation over every (env, joint) column of a (time, env, joint) array."""
+    return np.mean([np.corrcoef(series[:-1, e, j], series[1:, e, j])[0, 1]
+                    for e in range(series.shape[1]) for j in range(series.shape[2])])
+
+
 def _gaussian(dist, rows, action_dim=3):
     return dist.proba_distribution(th.zeros(rows, action_dim), th.zeros(rows, action_dim))
 
@@ -29,15 +35,13 @@ def test_rollout_noise_is_pink_per_env_and_gradient_noise_is_white():
     dist, actor = _dist()
     steps = np.stack([np.arctanh(_gaussian(dist, 4).sample().numpy().clip(-0.999999, 0.999999))
                       for _ in range(256)])  # (time, env, joint), the Gaussian before the squash
-    lag1 = np.mean([np.corrcoef(steps[:-1, e, j], steps[1:, e, j])[0, 1] for e in range(4) for j in range(3)])
-    assert lag1 > 0.5  # pink: successive rollout steps are strongly correlated
+    assert _mean_lag1(steps) > 0.5  # pink: successive rollout steps are strongly correlated
     assert not np.allclose(steps[:, 0], steps[:, 1])  # each sub-env has its own process
     actor.train(True)  # a gradient step: SB3's independent samples
     batch = np.arctanh(_gaussian(dist, 4).sample().numpy().clip(-0.999999, 0.999999))
     white = np.stack([np.arctanh(_gaussian(dist, 4).sample().numpy().clip(-0.999999, 0.999999))
                       for _ in range(256)])
-    lag1_white = np.mean([np.corrcoef(white[:-1, e, j], white[1:, e, j])[0, 1] for e in range(4) for j in range(3)])
-    assert abs(lag1_white) < 0.2 and batch.shape == (4, 3)
+    assert abs(_mean_lag1(white)) < 0.2 and batch.shape == (4, 3)
     actor.train(False)  # a batch of another size (e.g. a stochastic evaluation of one env): white noise too
     assert _gaussian(dist, 1).sample().shape == (1, 3)
 
@@ -59,16 +63,14 @@ def test_ppo_rollout_noise_is_pink_around_the_mean_and_its_log_prob_the_gaussian
     mean, log_std = th.full((4, 3), 0.5), th.full((3,), np.log(2.0))
     steps = np.stack([dist.proba_distribution(mean, log_std).sample().numpy() for _ in range(256)])
     noise = (steps - 0.5) / 2.0  # (time, env, joint): the draw behind each action
-    lag1 = np.mean([np.corrcoef(noise[:-1, e, j], noise[1:, e, j])[0, 1] for e in range(4) for j in range(3)])
-    assert lag1 > 0.5 and not np.allclose(noise[:, 0], noise[:, 1])
+    assert _mean_lag1(noise) > 0.5 and not np.allclose(noise[:, 0], noise[:, 1])
     assert 0.5 < noise.std() < 1.5  # the policy's std scales a unit-variance draw
     action = th.as_tensor(steps[-1])
     reference = th.distributions.Normal(mean, th.full((4, 3), 2.0)).log_prob(action).sum(dim=1)
     assert th.allclose(dist.log_prob(action), reference, atol=1e-5)
     policy.train(True)  # outside a rollout: SB3's independent samples
     white = np.stack([dist.proba_distribution(mean, log_std).sample().numpy() for _ in range(256)])
-    lag1_white = np.mean([np.corrcoef(white[:-1, e, j], white[1:, e, j])[0, 1] for e in range(4) for j in range(3)])
-    assert abs(lag1_white) < 0.2
+    assert abs(_mean_lag1(white)) < 0.2
 
 
 @pytest.mark.parametrize("entry, message", [
@@ -125,9 +127,7 @@ def test_ppo_rollout_actions_are_pink():
         model.learn(512)
         actions = model.rollout_buffer.actions  # flattened env by env after the update: (env * time, joint)
         actions = actions.reshape(2, 256, -1).transpose(1, 0, 2)  # (time, env, joint)
-        noise = actions - actions.mean(axis=0)
-        return np.mean([np.corrcoef(noise[:-1, e, j], noise[1:, e, j])[0, 1]
-                        for e in range(2) for j in range(noise.shape[2])])
+        return _mean_lag1(actions - actions.mean(axis=0))
 
     assert lag1_of_rollout("pink") > 0.4
     assert lag1_of_rollout(None) < 0.3  # white noise around a mean that moves slowly
