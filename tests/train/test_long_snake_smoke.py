@@ -37,10 +37,13 @@ def test_shipped_config_trains_and_evaluates_on_snake12(algo, steps, tmp_path):
 
 
 def test_shipped_snake30_ppo_entry_is_the_shared_policy_and_runs_another_length(tmp_path):
-    """Snake30's PPO entry is JointPolicy: it trains from the shipped config (one small rollout) and the same
-    run evaluates on Snake30 and on Snake20, which it never saw."""
+    """Snake30's PPO entry is JointPolicy and Snake20's is the same entry: it trains from the shipped config
+    (one small rollout) and the same run evaluates on Snake30 and on Snake20, which it never saw."""
     env_id = next(env_id for env_id in newest_locomotion_ids() if env_id.startswith("snake_env/Snake30-"))
-    assert build_config("ppo", env_id)["policy"] == "JointPolicy"
+    shipped = build_config("ppo", env_id)
+    assert shipped["policy"] == "JointPolicy"
+    snake20 = build_config("ppo", env_id.replace("Snake30", "Snake20"))
+    assert {**snake20, "env_id": env_id} == shipped
     run_dir = tmp_path / "run"
     assert train_main(["--algo", "ppo", "--env", env_id, "--total-timesteps", "256", "--run-dir", str(run_dir),
                        "--set", "n_envs=4", "--set", "n_steps=64", "--set", "batch_size=64",
